@@ -1,0 +1,41 @@
+# Every target installs what it needs: on a fresh machine `make run` and
+# `make test` are the whole set-up.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
+SEED ?= 0
+
+.PHONY: setup run test lint bench learn-check pretrained clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml constraints.txt
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/pip install $(PIP_FLAGS) --upgrade pip
+	$(BIN)/pip install $(PIP_FLAGS) torch==2.13.0
+	$(BIN)/pip install $(PIP_FLAGS) -e '.[dev]'
+	touch $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/behave populate --seed $(SEED) --out runs/populate
+
+test: $(STAMP)
+	$(BIN)/python -m pytest
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/bench_env.py
+
+learn-check: $(STAMP)
+	$(BIN)/python benchmarks/learn_check.py --seed $(SEED)
+
+pretrained: $(STAMP)
+	$(BIN)/python benchmarks/make_pretrained.py --seed $(SEED)
+
+clean:
+	rm -rf $(VENV) runs build *.egg-info

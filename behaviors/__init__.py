@@ -1,0 +1,1 @@
+"""behave: learned, behaviour-based traffic in SUMO."""
