@@ -1,0 +1,77 @@
+"""Turn the policy's (steer, accel, brake) into SUMO commands, TORCS-style.
+
+SUMO's sublane model moves a car sideways but has no heading of its own
+(`changeSublane` with 0 means "follow the lane"), so each agent carries a
+heading relative to the road axis. Steering turns it (kinematic bicycle,
+capped by a lateral-acceleration limit), road curvature turns the road under
+it (so steer 0 on a curve drifts outward), and the car then moves
+v*cos(angle) along the lane (setSpeed) and v*sin(angle) across it
+(changeSublane). Pure numpy; `SumoSim.command_agents` writes the result.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from behaviors.sensors import wrap_angle
+
+
+@dataclass(frozen=True)
+class CarModel:
+    """Physical limits of a learned agent; length/width match the behave vTypes."""
+
+    length: float = 5.0
+    width: float = 1.8
+    max_accel: float = 3.0  # m/s^2 at accel = 1
+    max_brake: float = 7.5  # m/s^2 at brake = 1
+    max_steer: float = 0.366  # rad at steer = +-1 (TORCS' steer lock)
+    wheelbase: float = 2.7
+    max_lateral_accel: float = 8.0  # m/s^2, caps the yaw rate at speed
+    max_lateral_speed: float = 5.0  # m/s, the vTypes' maxSpeedLat: SUMO's per-step cap
+
+
+@dataclass(frozen=True)
+class Actuation:
+    speed: np.ndarray  # [N] new car speed, m/s (along its heading)
+    angle: np.ndarray  # [N] new heading relative to the road axis, radians
+    lane_speed: np.ndarray  # [N] speed to command along the lane, m/s
+    lateral_move: np.ndarray  # [N] sideways move this step, metres (positive = left)
+    off_track: np.ndarray  # [N] bool: the move would have crossed the carriageway border
+
+
+def actuate(
+    actions: np.ndarray,
+    speed: np.ndarray,
+    angle: np.ndarray,
+    offset: np.ndarray,
+    half_width: np.ndarray,
+    curvature: np.ndarray,
+    speed_limit: np.ndarray,
+    dt: float,
+    car: CarModel,
+) -> Actuation:
+    """One control step for all agents.
+
+    `offset` is the car centre's distance from the carriageway centre (positive =
+    left), `half_width` half the carriageway width, `curvature` the road axis's
+    curvature (1/m, positive = turning left) at the car.
+    """
+    steer = np.clip(actions[:, 0], -1.0, 1.0)
+    accel = np.clip(actions[:, 1], 0.0, 1.0)
+    brake = np.clip(actions[:, 2], 0.0, 1.0)
+    new_speed = np.clip(speed + (car.max_accel * accel - car.max_brake * brake) * dt, 0.0, speed_limit)
+    yaw_rate = steer * np.minimum(
+        new_speed * np.tan(car.max_steer) / car.wheelbase,
+        car.max_lateral_accel / np.maximum(new_speed, 1.0),
+    )
+    along = new_speed * np.cos(angle) / np.maximum(1.0 - curvature * offset, 0.1)
+    new_angle = wrap_angle(angle + (yaw_rate - curvature * along) * dt)
+    cap = car.max_lateral_speed * dt
+    move = np.clip(new_speed * np.sin(new_angle) * dt, -cap, cap)
+    room = half_width - car.width / 2
+    target = offset + move
+    off_track = np.abs(target) > room
+    move = np.clip(target, -room, room) - offset
+    return Actuation(new_speed, new_angle, np.maximum(new_speed * np.cos(new_angle), 0.0), move, off_track)

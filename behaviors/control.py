@@ -1,0 +1,129 @@
+"""The per-step loop shared by training, evaluation and populate.
+
+`Fleet` keeps what SUMO does not know about the learned agents (their speed and
+heading relative to the road, how long they have been stuck), turns one read
+of SUMO into their observations, and one array of actions into the two SUMO
+commands per agent. Which agents exist and when they leave is the caller's
+business (env.py for training, populate.py for any network).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from behaviors.actuation import Actuation, CarModel, actuate
+from behaviors.geometry import RoadGeometry
+from behaviors.rewards import NO_PROGRESS_SPEED
+from behaviors.sensors import AgentFrame, observe
+from behaviors.sim import AgentReadings, SumoSim, VehicleState
+
+
+@dataclass(frozen=True)
+class RoadFrame:
+    """Where each agent is on the road, derived from one SUMO read."""
+
+    centre: np.ndarray  # [N, 2]
+    heading: np.ndarray  # [N] world heading = road axis + relative angle
+    offset: np.ndarray  # [N] metres from the carriageway centre, positive = left
+    half_width: np.ndarray  # [N] half the carriageway width
+    curvature: np.ndarray  # [N] 1/m, positive = road turns left
+    speed_limit: np.ndarray  # [N] m/s
+    on_normal_edge: np.ndarray  # [N] bool, False inside junctions
+
+
+def road_frame(
+    geometry: RoadGeometry,
+    readings: AgentReadings,
+    front: np.ndarray,
+    angle: np.ndarray,
+    car: CarModel,
+) -> RoadFrame:
+    """Locate agents from their lane, lane position and lateral offset; `front` is SUMO's position."""
+    rows = np.array([geometry.lane_index[lane] for lane in readings.lane_id], np.int64)
+    tangent, curvature = geometry.road_axis(rows, readings.lane_pos)
+    heading = tangent + angle
+    centre = front - (car.length / 2) * np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    width = geometry.lane_width[rows]
+    lanes = geometry.lane_num_lanes[rows]
+    offset = (geometry.lane_number[rows] - (lanes - 1) / 2) * width + readings.lateral_pos
+    return RoadFrame(
+        centre=centre,
+        heading=heading,
+        offset=offset,
+        half_width=lanes * width / 2,
+        curvature=curvature,
+        speed_limit=geometry.lane_speed[rows],
+        on_normal_edge=geometry.lane_normal[rows],
+    )
+
+
+class Fleet:
+    """State and stepping of N learned agents (row i = `ids[i]`), vectorised."""
+
+    def __init__(self, geometry: RoadGeometry, car: CarModel, dt: float) -> None:
+        self.geometry = geometry
+        self.car = car
+        self.dt = dt
+        self.ids: list[str] = []
+        self.speed = np.zeros(0)
+        self.angle = np.zeros(0)
+        self.slow_time = np.zeros(0)
+        self.behaviour_id = np.zeros(0, np.float32)
+        self.frame: RoadFrame | None = None
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def add(self, ids: list[str], speed: np.ndarray, behaviour_id: np.ndarray) -> None:
+        self.ids = self.ids + ids
+        self.speed = np.concatenate([self.speed, speed])
+        self.angle = np.concatenate([self.angle, np.zeros(len(ids))])
+        self.slow_time = np.concatenate([self.slow_time, np.zeros(len(ids))])
+        self.behaviour_id = np.concatenate([self.behaviour_id, behaviour_id.astype(np.float32)])
+
+    def keep(self, mask: np.ndarray) -> None:
+        """Drop the rows where `mask` is False (agents that left)."""
+        self.ids = [vid for vid, k in zip(self.ids, mask, strict=True) if k]
+        self.speed, self.angle = self.speed[mask], self.angle[mask]
+        self.slow_time, self.behaviour_id = self.slow_time[mask], self.behaviour_id[mask]
+        if self.frame is not None:
+            self.frame = RoadFrame(*(getattr(self.frame, f.name)[mask] for f in fields(RoadFrame)))
+
+    def sense(self, sim: SumoSim, vehicles: VehicleState, with_id: bool) -> np.ndarray:
+        """Read the agents' lanes from SUMO and return their observations [N, 65 or 66]."""
+        readings = sim.read_agents(self.ids)
+        rows = np.array([vehicles.row[vid] for vid in self.ids], np.int64)
+        self.frame = road_frame(self.geometry, readings, vehicles.position[rows], self.angle, self.car)
+        centres = vehicles.position.copy()
+        centres[rows] = self.frame.centre  # agents' centres are known exactly; others' fronts suffice
+        agents = AgentFrame(
+            centre=self.frame.centre,
+            heading=self.frame.heading,
+            angle=self.angle,
+            speed=self.speed,
+            track_pos=np.clip(self.frame.offset / self.frame.half_width, -1.0, 1.0),
+        )
+        return observe(agents, centres, rows, self.geometry, self.behaviour_id if with_id else None)
+
+    def act(self, sim: SumoSim, actions: np.ndarray) -> Actuation:
+        """Apply [N, 3] actions (steer, accel, brake) for the next step; returns what was commanded."""
+        f = self.frame
+        if f is None:
+            raise RuntimeError("Fleet.act before Fleet.sense")
+        result = actuate(
+            actions,
+            self.speed,
+            self.angle,
+            f.offset,
+            f.half_width,
+            f.curvature,
+            f.speed_limit,
+            self.dt,
+            self.car,
+        )
+        sim.command_agents(self.ids, result.lane_speed, result.lateral_move)
+        self.speed, self.angle = result.speed, result.angle
+        self.slow_time = np.where(result.speed < NO_PROGRESS_SPEED, self.slow_time + self.dt, 0.0)
+        return result

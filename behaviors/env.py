@@ -1,0 +1,434 @@
+"""The training environment: N learned cars on a SUMO road, as a PettingZoo ParallelEnv.
+
+Two interfaces on one object:
+* PettingZoo's dict-per-agent `reset`/`step` (agents leave and never return);
+* `reset_arrays`/`step_arrays` for the trainer: one array of observations for all
+  live agents, one array of actions in, no per-agent conversion.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from behaviors.actuation import CarModel
+from behaviors.control import Fleet
+from behaviors.errors import BehaveError
+from behaviors.geometry import RoadGeometry, load_geometry
+from behaviors.rewards import NO_PROGRESS_SECONDS, RewardTerms, race_positions, step_rewards
+from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT
+from behaviors.sim import SimOptions, SumoSim
+from sumo_scenarios import SCENARIO_NAMES, Scenario, get_scenario, route_edges
+
+BEHAVIOURS = ("lanekeeping", "overtaking", "multi")
+PLACEMENTS = ("A", "B", "C")
+KEEPER_TYPE = "behave_keeper"
+OVERTAKER_TYPE = "behave_overtaker"
+PASSIVE_TYPE = "behave_passive"
+ROUTE_SECONDS = 3600.0
+"""Looping routes are unrolled for at least this much driving at 50 m/s."""
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Everything that defines an episode; `validate` names any impossible combination."""
+
+    scenario: str = "ring"
+    behaviour: str = "lanekeeping"
+    agents: int = 6
+    overtakers: int = 0
+    keepers: int = 0
+    placement: str = "C"
+    opponents: int | None = None  # passive slower cars ahead (overtaking); None = as many as agents
+    max_steps: int = 1000
+    step_length: float = 0.2
+    spacing: float = 30.0  # metres between consecutive cars in the same lane at the start
+    seed: int | None = None
+    car: CarModel = field(default_factory=CarModel)
+
+    def validate(self) -> None:
+        if self.behaviour not in BEHAVIOURS:
+            raise BehaveError(f"unknown behaviour '{self.behaviour}' (choose from {', '.join(BEHAVIOURS)})")
+        if self.placement not in PLACEMENTS:
+            raise BehaveError(f"unknown placement '{self.placement}' (choose from {', '.join(PLACEMENTS)})")
+        if self.scenario not in SCENARIO_NAMES:
+            get_scenario(self.scenario)  # raises with the list of choices
+        if self.behaviour == "multi":
+            if self.overtakers < 0 or self.keepers < 0 or self.overtakers + self.keepers == 0:
+                raise BehaveError("multi needs --overtakers and --keepers (at least one agent in all)")
+        elif self.agents < 1:
+            raise BehaveError(f"need at least one agent, got {self.agents}")
+        elif self.overtakers or self.keepers:
+            raise BehaveError("--overtakers/--keepers only apply to the multi behaviour")
+        if self.max_steps < 1:
+            raise BehaveError(f"max_steps must be positive, got {self.max_steps}")
+        if not 0.01 <= self.step_length <= 1.0:
+            raise BehaveError(f"step length must be in [0.01, 1] s, got {self.step_length}")
+        if (self.opponents or 0) < 0:
+            raise BehaveError(f"opponents must be >= 0, got {self.opponents}")
+
+    @property
+    def n_agents(self) -> int:
+        return self.overtakers + self.keepers if self.behaviour == "multi" else self.agents
+
+    @property
+    def n_opponents(self) -> int:
+        if self.behaviour != "overtaking":
+            return 0
+        return self.agents if self.opponents is None else self.opponents
+
+    @property
+    def obs_size(self) -> int:
+        return OBS_SIZE_WITH_ID if self.behaviour == "multi" else OBS_SIZE
+
+    def behaviour_ids(self) -> np.ndarray:
+        """Behaviour id per agent slot (1 = overtaker), in start-formation order from the front."""
+        if self.behaviour == "lanekeeping":
+            return np.zeros(self.agents)
+        if self.behaviour == "overtaking":
+            return np.ones(self.agents)
+        over, keep = np.ones(self.overtakers), np.zeros(self.keepers)
+        if self.placement == "A":
+            return np.concatenate([over, keep])
+        if self.placement == "B":
+            return np.concatenate([keep, over])
+        mixed = np.zeros(self.n_agents)
+        mixed[interleaved(self.overtakers, self.keepers)] = 1.0
+        return mixed
+
+
+def interleaved(first: int, second: int) -> np.ndarray:
+    """Positions of `first` items spread evenly among `first + second` slots."""
+    total = first + second
+    return np.floor((np.arange(first) + 0.5) * total / max(first, 1)).astype(int)
+
+
+@dataclass(frozen=True)
+class StepBatch:
+    """One step for the agents that acted (row i = slot `slots[i]`)."""
+
+    slots: np.ndarray  # [n] agent slots, in the order of the actions given
+    next_obs: np.ndarray  # [n, D] observation after the step (the last one for agents that left)
+    reward: np.ndarray  # [n]
+    terms: RewardTerms
+    terminated: np.ndarray  # [n] collision, off-track or no progress: no bootstrap
+    truncated: np.ndarray  # [n] time limit or end of route: bootstrap
+    collided: np.ndarray
+    off_track: np.ndarray
+    no_progress: np.ndarray
+    speed: np.ndarray  # [n] m/s after the step
+
+
+class BehaveEnv(ParallelEnv):
+    """N learned cars (and optional passive SUMO cars) on a bundled scenario."""
+
+    metadata: ClassVar[dict] = {"name": "behave_v0", "render_modes": [], "is_parallelizable": True}
+
+    def __init__(self, config: EnvConfig) -> None:
+        config.validate()
+        self.config = config
+        self.scenario: Scenario = get_scenario(config.scenario)
+        self.geometry: RoadGeometry = load_geometry(self.scenario.net)
+        self.lap = route_edges(self.scenario)
+        self.slot_behaviour = config.behaviour_ids()
+        self.possible_agents = [f"agent_{i}" for i in range(config.n_agents)]
+        self._slot_of = {name: i for i, name in enumerate(self.possible_agents)}
+        self._obs_space = observation_space(config.obs_size)
+        self._act_space = action_space()
+        self._check_capacity()
+        self.sim: SumoSim | None = None
+        self.fleet = Fleet(self.geometry, config.car, config.step_length)
+        self.agents: list[str] = []
+        self._rng = np.random.default_rng(config.seed)
+        self._seed = config.seed
+
+    # --- PettingZoo -------------------------------------------------------------------
+    def observation_space(self, agent: str) -> spaces.Box:
+        return self._obs_space
+
+    def action_space(self, agent: str) -> spaces.Box:
+        return self._act_space
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        obs = self.reset_arrays(seed)
+        names = self.agents
+        return dict(zip(names, obs, strict=True)), {name: {} for name in names}
+
+    def step(self, actions: dict):
+        acting = list(self.agents)
+        batch = self.step_arrays(np.array([actions[name] for name in acting], np.float32).reshape(-1, 3))
+        obs, rew, term, trunc, info = {}, {}, {}, {}, {}
+        terms = batch.terms.as_dict()
+        for i, name in enumerate(acting):
+            obs[name] = batch.next_obs[i]
+            rew[name] = float(batch.reward[i])
+            term[name] = bool(batch.terminated[i])
+            trunc[name] = bool(batch.truncated[i])
+            info[name] = {key: float(value[i]) for key, value in terms.items()}
+        return obs, rew, term, trunc, info
+
+    def close(self) -> None:
+        if self.sim is not None:
+            self.sim.close()
+            self.sim = None
+
+    def render(self) -> None:
+        return None
+
+    def state(self) -> np.ndarray:
+        return self.live_obs.copy()
+
+    # --- batched interface ------------------------------------------------------------
+    @property
+    def live_slots(self) -> np.ndarray:
+        return np.array([self._slot_of[name] for name in self.agents], np.int64)
+
+    def reset_arrays(self, seed: int | None = None) -> np.ndarray:
+        """Start an episode; returns observations [n_agents, D] in slot order."""
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+            self._seed = seed
+        sumo_seed = int(self._rng.integers(2**31 - 1))
+        if self.sim is None:
+            self.sim = SumoSim(self._sim_options(sumo_seed))
+        else:
+            self.sim.reload(sumo_seed)
+        self._populate()
+        self.steps = 0
+        vehicles = self.sim.read_vehicles()
+        self.live_obs = self.fleet.sense(self.sim, vehicles, self.config.behaviour == "multi")
+        self._update_progress(vehicles)
+        return self.live_obs
+
+    def step_arrays(self, actions: np.ndarray) -> StepBatch:
+        """Act for the live agents (rows in `live_slots` order) and advance SUMO one step."""
+        if self.sim is None or not self.agents:
+            raise RuntimeError("step_arrays needs a running episode: call reset first")
+        if actions.shape != (len(self.agents), 3):
+            raise ValueError(f"expected actions of shape ({len(self.agents)}, 3), got {actions.shape}")
+        sim, fleet = self.sim, self.fleet
+        slots = self.live_slots
+        last_obs = self.live_obs
+        actuation = fleet.act(sim, actions)
+        sim.step()
+        self.steps += 1
+        contact = sim.collisions()
+        vehicles = sim.read_vehicles()
+        present = np.array([vid in vehicles.row for vid in fleet.ids], bool)
+        next_obs = last_obs.copy()  # an agent that left keeps its last observation
+        if not present.all():
+            fleet.keep(present)
+        if present.any():
+            next_obs[present] = fleet.sense(sim, vehicles, self.config.behaviour == "multi")
+        self._update_progress(vehicles)
+        collided = np.array([vid in contact for vid in self.agents], bool)
+        off_track = actuation.off_track & present
+        no_progress = (self._slow_time(present) >= NO_PROGRESS_SECONDS) & present
+        race = race_positions(self.progress)[slots]
+        speed, angle = actuation.speed, actuation.angle
+        terms = step_rewards(
+            speed,
+            angle,
+            self.slot_behaviour[slots],
+            race,
+            len(self.progress),
+            collided,
+            off_track,
+            no_progress,
+        )
+        terminated = collided | off_track | no_progress
+        truncated = ~terminated & (~present | (self.steps >= self.config.max_steps))
+        self._leave(slots, present, terminated | truncated, contact)
+        self.live_obs = next_obs[~(terminated | truncated)]
+        return StepBatch(
+            slots,
+            next_obs,
+            terms.total,
+            terms,
+            terminated,
+            truncated,
+            collided,
+            off_track,
+            no_progress,
+            speed,
+        )
+
+    # --- internals --------------------------------------------------------------------
+    def _sim_options(self, seed: int) -> SimOptions:
+        s = self.scenario
+        return SimOptions(
+            net=s.net,
+            additional=(s.vtypes,),
+            routes=(s.routes,),
+            step_length=self.config.step_length,
+            seed=seed,
+        )
+
+    def _check_capacity(self) -> None:
+        lanes = max(info.lanes for info in self.geometry.edges.values() if info.normal)
+        cars = self.config.n_agents + self.config.n_opponents
+        needed = self._formation_length(cars, lanes)
+        route_length = sum(self.geometry.edges[e].length for e in self.lap)
+        usable = route_length * (0.9 if self.scenario.looping else 0.5)
+        if needed > usable:
+            most = int(usable / self.config.spacing * lanes)
+            raise BehaveError(
+                f"{cars} cars do not fit on scenario '{self.config.scenario}' "
+                f"({route_length:.0f} m, {lanes} lanes, {self.config.spacing:.0f} m spacing): "
+                f"at most about {most}"
+            )
+
+    def _formation_length(self, cars: int, lanes: int) -> float:
+        return cars * self.config.spacing / lanes + 2 * self.config.spacing
+
+    def _populate(self) -> None:
+        """Insert passive cars ahead and the agents behind them in a staggered formation."""
+        sim, cfg = self.sim, self.config
+        assert sim is not None
+        lanes = min(self.geometry.edges[e].lanes for e in self.lap)
+        lap_length = sum(self.geometry.edges[e].length for e in self.lap)
+        step = cfg.spacing / lanes
+        cars = cfg.n_opponents + cfg.n_agents
+        if self.scenario.looping:
+            front = float(self._rng.uniform(0, lap_length))
+        else:
+            front = self._formation_length(cars, lanes)
+        first_lane = int(self._rng.integers(lanes))
+        names = self.possible_agents
+        routes = self._routes()
+        self.start_progress = np.zeros(cars)
+        vids, types = [], []
+        for k in range(cars):  # formation order: front (opponents) to back
+            at = front - (k * step + (cfg.spacing if k >= cfg.n_opponents and cfg.n_opponents else 0))
+            is_agent = k >= cfg.n_opponents
+            slot = k - cfg.n_opponents
+            vid = names[slot] if is_agent else f"passive_{k}"
+            vtype = (
+                (OVERTAKER_TYPE if self.slot_behaviour[slot] else KEEPER_TYPE) if is_agent else PASSIVE_TYPE
+            )
+            edge_index, pos = self._locate(at % lap_length if self.scenario.looping else at)
+            sim.add_vehicle(vid, routes[edge_index], vtype, lane=(first_lane + k) % lanes, pos=pos, speed=0.0)
+            self.start_progress[k] = at
+            vids.append(vid)
+            types.append(is_agent)
+        agent_ids = [v for v, a in zip(vids, types, strict=True) if a]
+        sim.take_control(agent_ids)
+        sim.step()
+        missing = set(vids) - set(sim.vehicle_ids())
+        if missing:
+            raise BehaveError(f"SUMO could not insert {len(missing)} cars (spacing too small for the road)")
+        self.car_ids = vids
+        self.agents = list(agent_ids)
+        self.fleet = Fleet(self.geometry, cfg.car, cfg.step_length)
+        self.fleet.add(agent_ids, np.zeros(len(agent_ids)), self.slot_behaviour)
+        self.progress = self.start_progress.copy()
+        self._agent_car_index = np.arange(cfg.n_opponents, cars)
+        self._car_row = {vid: k for k, vid in enumerate(vids)}
+
+    def _routes(self) -> list[str]:
+        """One route per start edge: the lap rotated to start there, unrolled for looping scenarios."""
+        sim = self.sim
+        assert sim is not None
+        if not self.scenario.looping:
+            return [self.scenario.route_id] * len(self.lap)
+        lap_length = sum(self.geometry.edges[e].length for e in self.lap)
+        laps = int(np.ceil(ROUTE_SECONDS * 50.0 / lap_length)) + 1
+        ids = []
+        for k in range(len(self.lap)):
+            rid = f"lap_from_{k}"
+            sim.add_route(rid, (self.lap[k:] + self.lap[:k]) * laps)
+            ids.append(rid)
+        return ids
+
+    def _locate(self, distance: float) -> tuple[int, float]:
+        """Route edge index and front position for a distance along the lap, kept clear of junctions."""
+        for k, edge in enumerate(self.lap):
+            length = self.geometry.edges[edge].length
+            if distance < length or k == len(self.lap) - 1:
+                return k, float(np.clip(distance, self.config.car.length + 0.5, length - 0.5))
+            distance -= length
+        raise AssertionError("unreachable")
+
+    def _update_progress(self, vehicles) -> None:
+        """Progress along the route of every scenario car: start position plus odometer."""
+        for vid, k in self._car_row.items():
+            row = vehicles.row.get(vid)
+            if row is not None:
+                self.progress[k] = self.start_progress[k] + vehicles.distance[row]
+
+    def _slow_time(self, present: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(present))
+        out[present] = self.fleet.slow_time
+        return out
+
+    def _leave(self, slots: np.ndarray, present: np.ndarray, leaving: np.ndarray, contact: set[str]) -> None:
+        """Take agents that ended off the road (and passive cars wrecked in a collision)."""
+        sim = self.sim
+        assert sim is not None
+        names = [self.possible_agents[s] for s in slots]
+        gone = [n for n, p, leave in zip(names, present, leaving, strict=True) if p and leave]
+        wrecked = [v for v in self.car_ids if v.startswith("passive_") and v in contact]
+        sim.remove(gone + wrecked)
+        self.car_ids = [v for v in self.car_ids if v not in set(wrecked)]
+        keep_live = ~leaving[present] if present.any() else np.zeros(0, bool)
+        self.fleet.keep(keep_live)
+        self.agents = [n for n, leave in zip(names, leaving, strict=True) if not leave]
+
+
+def observation_space(size: int) -> spaces.Box:
+    """Bounds of every normalised value (see sensors.OBSERVATION_LAYOUT)."""
+    bounds = {
+        "angle": (-1, 1),
+        "track": (0, 1),
+        "trackPos": (-1, 1),
+        "speedX": (-1, 1),
+        "speedY": (-1, 1),
+        "speedZ": (-1, 1),
+        "wheelSpinVel": (0, 2),
+        "rpm": (0, 1),
+        "opponents": (0, 1),
+    }
+    low = np.concatenate([np.full(n, bounds[name][0]) for name, n in OBSERVATION_LAYOUT])
+    high = np.concatenate([np.full(n, bounds[name][1]) for name, n in OBSERVATION_LAYOUT])
+    if size == OBS_SIZE_WITH_ID:
+        low, high = np.append(low, 0.0), np.append(high, 1.0)
+    return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
+
+
+def action_space() -> spaces.Box:
+    """steer in [-1, 1], accel in [0, 1], brake in [0, 1]."""
+    return spaces.Box(np.array([-1, 0, 0], np.float32), np.array([1, 1, 1], np.float32), dtype=np.float32)
+
+
+def make_env(
+    scenario: str = "ring",
+    *,
+    behaviour: str = "lanekeeping",
+    agents: int = 6,
+    overtakers: int = 0,
+    keepers: int = 0,
+    placement: str = "C",
+    opponents: int | None = None,
+    seed: int | None = None,
+    max_steps: int = 1000,
+    step_length: float = 0.2,
+) -> BehaveEnv:
+    """A native PettingZoo ParallelEnv with a batched array interface for trainers."""
+    return BehaveEnv(
+        EnvConfig(
+            scenario=scenario,
+            behaviour=behaviour,
+            agents=agents,
+            overtakers=overtakers,
+            keepers=keepers,
+            placement=placement,
+            opponents=opponents,
+            seed=seed,
+            max_steps=max_steps,
+            step_length=step_length,
+        )
+    )

@@ -1,0 +1,203 @@
+"""SumoSim: the one owner of libsumo in a process.
+
+libsumo allows a single simulation per process, so everything that talks to
+SUMO goes through this class: start with a seed, fast reset with `load`, step,
+read every vehicle's state once into arrays, write the two commands per agent,
+close. No other module imports libsumo.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from behaviors.errors import BehaveError
+from behaviors.sumo_home import sumo_binary
+
+COLLISION_OPTIONS = (
+    "--collision.action",
+    "warn",  # report contacts, leave the cars: behave removes the crashed agent
+    "--collision.mingap-factor",
+    "0",  # physical contact only, not minGap violations
+    "--collision.check-junctions",
+    "true",
+    "--time-to-teleport",
+    "-1",  # a stuck car stays stuck (no progress), it is never teleported
+)
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    """Everything that determines a SUMO run besides the vehicles behave adds."""
+
+    net: Path
+    additional: tuple[Path, ...] = ()
+    routes: tuple[Path, ...] = ()
+    step_length: float = 0.2
+    lateral_resolution: float = 0.8
+    seed: int = 0
+    extra: tuple[str, ...] = field(default_factory=tuple)
+
+    def command(self) -> list[str]:
+        cmd = [
+            sumo_binary("sumo"),
+            "--net-file",
+            str(self.net),
+            "--step-length",
+            repr(self.step_length),
+            "--lateral-resolution",
+            repr(self.lateral_resolution),
+            "--seed",
+            str(self.seed),
+            "--no-step-log",
+            "true",
+            "--no-warnings",
+            "true",
+            "--duration-log.disable",
+            "true",
+            *COLLISION_OPTIONS,
+        ]
+        if self.additional:
+            cmd += ["--additional-files", ",".join(str(p) for p in self.additional)]
+        if self.routes:
+            cmd += ["--route-files", ",".join(str(p) for p in self.routes)]
+        return cmd + list(self.extra)
+
+
+@dataclass(frozen=True)
+class VehicleState:
+    """Every vehicle in the simulation after a step; row order = `ids`."""
+
+    ids: list[str]
+    position: np.ndarray  # [M, 2] front bumper centre (SUMO's vehicle position), metres
+    distance: np.ndarray  # [M] odometer since insertion, metres
+    row: dict[str, int]
+
+
+@dataclass(frozen=True)
+class AgentReadings:
+    """What SUMO knows about the controlled agents (row i = i-th requested id)."""
+
+    lane_id: list[str]
+    lane_pos: np.ndarray  # [N] metres along the lane
+    lateral_pos: np.ndarray  # [N] metres from the lane centre, positive = left
+
+
+class SumoSim:
+    """A libsumo simulation; use as a context manager or call close()."""
+
+    def __init__(self, options: SimOptions) -> None:
+        import libsumo  # deferred: importing libsumo is slow and prints nothing useful at import
+
+        self._sumo = libsumo
+        self.options = options
+        try:
+            libsumo.start(options.command())
+        except Exception as exc:  # libsumo raises its own TraCIException/FatalSumoError types
+            raise BehaveError(f"SUMO could not start: {_one_line(exc)}") from None
+        self.step_length = options.step_length
+
+    def __enter__(self) -> SumoSim:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def reload(self, seed: int) -> None:
+        """Fast reset: same network and files, new seed, time 0 (libsumo's `load`)."""
+        options = SimOptions(**{**self.options.__dict__, "seed": seed})
+        self._sumo.load(options.command()[1:])
+        self.options = options
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):  # already closed: closing twice is harmless
+            self._sumo.close()
+
+    @property
+    def time(self) -> float:
+        return self._sumo.simulation.getTime()
+
+    def step(self) -> None:
+        self._sumo.simulationStep()
+
+    def read_vehicles(self) -> VehicleState:
+        """Position and odometer of every vehicle: the one per-step read of the whole fleet."""
+        v = self._sumo.vehicle
+        ids = list(v.getIDList())
+        get_pos, get_dist = v.getPosition, v.getDistance
+        position = np.array([get_pos(i) for i in ids], float).reshape(-1, 2)
+        distance = np.array([get_dist(i) for i in ids], float)
+        return VehicleState(ids, position, distance, {vid: k for k, vid in enumerate(ids)})
+
+    def read_agents(self, ids: Sequence[str]) -> AgentReadings:
+        """Lane, lane position and lateral offset of the controlled vehicles."""
+        v = self._sumo.vehicle
+        get_lane, get_pos, get_lat = v.getLaneID, v.getLanePosition, v.getLateralLanePosition
+        return AgentReadings(
+            [get_lane(i) for i in ids],
+            np.array([get_pos(i) for i in ids], float),
+            np.array([get_lat(i) for i in ids], float),
+        )
+
+    def command_agents(self, ids: Sequence[str], speed: np.ndarray, lateral: np.ndarray) -> None:
+        """The two writes per agent: speed for the next step and a sideways move in metres."""
+        v = self._sumo.vehicle
+        set_speed, change_sublane = v.setSpeed, v.changeSublane
+        for vid, s, d in zip(ids, speed.tolist(), lateral.tolist(), strict=True):
+            set_speed(vid, s)
+            change_sublane(vid, d)
+
+    def collisions(self) -> set[str]:
+        """Ids of every vehicle in contact this step: both parties (SUMO may swap them in side hits)."""
+        hit: set[str] = set()
+        for c in self._sumo.simulation.getCollisions():
+            hit.add(c.collider)
+            hit.add(c.victim)
+        return hit
+
+    def arrived(self) -> set[str]:
+        """Vehicles that left the network this step at the end of their route."""
+        return set(self._sumo.simulation.getArrivedIDList())
+
+    def add_vehicle(self, vid: str, route: str, vtype: str, *, lane: int, pos: float, speed: float) -> None:
+        """Insert a vehicle now at an exact place; behave-controlled types drive with checks off."""
+        v = self._sumo.vehicle
+        v.add(
+            vid,
+            route,
+            typeID=vtype,
+            depart="now",
+            departLane=str(lane),
+            departPos=repr(pos),
+            departSpeed=repr(speed),
+        )
+
+    def take_control(self, ids: Sequence[str]) -> None:
+        """Speed mode 0 and lane-change mode 0: SUMO applies no safety, the policy drives."""
+        v = self._sumo.vehicle
+        for vid in ids:
+            v.setSpeedMode(vid, 0)
+            v.setLaneChangeMode(vid, 0)
+
+    def remove(self, ids: Sequence[str], reason: int = 0) -> None:
+        v = self._sumo.vehicle
+        for vid in ids:
+            v.remove(vid, reason)
+
+    def add_route(self, route_id: str, edges: Sequence[str]) -> None:
+        self._sumo.route.add(route_id, list(edges))
+
+    def vehicle_ids(self) -> list[str]:
+        return list(self._sumo.vehicle.getIDList())
+
+    def set_max_speed(self, vid: str, speed: float) -> None:
+        self._sumo.vehicle.setMaxSpeed(vid, speed)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[-1] if text else type(exc).__name__

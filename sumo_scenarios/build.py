@@ -1,0 +1,393 @@
+"""Write plain SUMO XML (nodes, edges, connections, routes, vTypes) and run netconvert.
+
+Only the standard library is imported here so that importing `sumo_scenarios` stays cheap;
+netconvert is located lazily through `behaviors.sumo_home`.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+import xml.etree.ElementTree as ET
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from itertools import pairwise
+from pathlib import Path
+
+from behaviors.errors import BehaveError
+from behaviors.sumo_home import sumo_binary
+
+Point = tuple[float, float]
+
+# Enough laps for 100,000 s at the agents' top speed (50 m/s): cars must never run out of route.
+LOOP_SECONDS = 100_000.0
+LOOP_MAX_SPEED = 50.0
+ARC_SPACING = 3.0  # metres of arc between shape points on curves: smooth lane angles
+VTYPES_FILE = "vtypes.add.xml"
+
+# Munich lies in UTM zone 32; the highway's node coordinates are real UTM metres there.
+UTM32 = "+proj=utm +zone=32 +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
+HIGHWAY_ORIGIN: Point = (690_000.0, 5_336_000.0)
+HIGHWAY_LENGTH = 3000.0
+# lon/lat box of HIGHWAY_ORIGIN + (0..HIGHWAY_LENGTH, 0), inverse UTM computed once offline
+# (informative only: SUMO projects with projParameter).
+HIGHWAY_LONLAT_BOUNDARY = "11.554519,48.147943,11.594811,48.148846"
+
+DESCRIPTIONS = {
+    "ring": "closed 3-lane oval, 3.0 km, curve radius 200 m",
+    "highway": "straight 3-lane motorway, 3 km, UTM-32 projection (geo FCD)",
+    "tiny": "straight 2-lane road, 600 m, for fast tests",
+}
+
+# --precision 4: with 2 decimals, rounding alone bends 3 m curve segments by up to +-40 %.
+NETCONVERT_OPTIONS = ("--no-turnarounds", "--junctions.corner-detail", "0", "--precision", "4")
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A bundled (or freshly built) road network with its route and the shared vTypes."""
+
+    name: str
+    net: Path
+    routes: Path
+    vtypes: Path
+    route_id: str
+    looping: bool
+    description: str
+
+
+@dataclass(frozen=True)
+class EdgeSpec:
+    """One directed edge: its shape runs from the `src` node to the `dst` node."""
+
+    id: str
+    src: str
+    dst: str
+    shape: list[Point]
+
+
+def split_segment(a: Point, b: Point, pieces: int) -> list[Point]:
+    """Points from a to b (both included) that cut the segment into equal pieces."""
+    return [(a[0] + (b[0] - a[0]) * i / pieces, a[1] + (b[1] - a[1]) * i / pieces) for i in range(pieces + 1)]
+
+
+def arc(centre: Point, radius: float, start: float, sweep: float) -> list[Point]:
+    """Dense counter-clockwise arc (angles in radians), both ends included."""
+    n = max(2, math.ceil(abs(sweep) * radius / ARC_SPACING))
+    return [
+        (
+            centre[0] + radius * math.cos(start + sweep * i / n),
+            centre[1] + radius * math.sin(start + sweep * i / n),
+        )
+        for i in range(n + 1)
+    ]
+
+
+def ring_edges(radius: float, straight: float, edge_length: float) -> list[EdgeSpec]:
+    """A counter-clockwise oval: straights split into ~edge_length pieces, each semicircle one edge.
+
+    Junction nodes sit only on the straights (or at the tangent points where a straight
+    meets a curve), so no junction lies on a curve.
+    """
+    pieces = max(1, round(straight / edge_length))
+    bottom = split_segment((0.0, -radius), (straight, -radius), pieces)
+    top = split_segment((straight, radius), (0.0, radius), pieces)
+    right = arc((straight, 0.0), radius, -math.pi / 2, math.pi)
+    left = arc((0.0, 0.0), radius, math.pi / 2, math.pi)
+    shapes = [[p, q] for p, q in pairwise(bottom)]
+    shapes.append(right)
+    shapes += [[p, q] for p, q in pairwise(top)]
+    shapes.append(left)
+    n = len(shapes)
+    return [EdgeSpec(f"e{i}", f"n{i}", f"n{(i + 1) % n}", shape) for i, shape in enumerate(shapes)]
+
+
+def straight_edges(length: float, edge_length: float, origin: Point = (0.0, 0.0)) -> list[EdgeSpec]:
+    """A straight road along +x, split into ~edge_length pieces."""
+    pieces = max(1, round(length / edge_length))
+    points = split_segment(origin, (origin[0] + length, origin[1]), pieces)
+    return [EdgeSpec(f"e{i}", f"n{i}", f"n{i + 1}", [p, q]) for i, (p, q) in enumerate(pairwise(points))]
+
+
+def fmt(value: float) -> str:
+    return f"{value:.4f}".rstrip("0").rstrip(".")
+
+
+def fmt_shape(shape: Sequence[Point]) -> str:
+    return " ".join(f"{fmt(x)},{fmt(y)}" for x, y in shape)
+
+
+def write_xml(root: ET.Element, path: Path) -> None:
+    ET.indent(root)
+    ET.ElementTree(root).write(path, encoding="UTF-8", xml_declaration=True)
+
+
+def write_nodes(path: Path, edges: Sequence[EdgeSpec], location: ET.Element | None = None) -> None:
+    root = ET.Element("nodes")
+    if location is not None:
+        root.append(location)
+    seen: set[str] = set()
+    for edge in edges:
+        for node, (x, y) in ((edge.src, edge.shape[0]), (edge.dst, edge.shape[-1])):
+            if node not in seen:
+                seen.add(node)
+                ET.SubElement(root, "node", id=node, x=fmt(x), y=fmt(y), type="priority")
+    write_xml(root, path)
+
+
+def write_edges(path: Path, edges: Sequence[EdgeSpec], lanes: int, lane_width: float, speed: float) -> None:
+    """spreadType center: the shape is the carriageway's centre line."""
+    root = ET.Element("edges")
+    for edge in edges:
+        attrs = {
+            "id": edge.id,
+            "from": edge.src,
+            "to": edge.dst,
+            "numLanes": str(lanes),
+            "speed": fmt(speed),
+            "width": fmt(lane_width),
+            "spreadType": "center",
+        }
+        if len(edge.shape) > 2:
+            attrs["shape"] = fmt_shape(edge.shape)
+        ET.SubElement(root, "edge", attrs)
+    write_xml(root, path)
+
+
+def write_connections(path: Path, edges: Sequence[EdgeSpec], lanes: int, closed: bool) -> None:
+    """Lane i continues on lane i of the next edge (no merges, no crossings)."""
+    root = ET.Element("connections")
+    pairs = list(pairwise(edges))
+    if closed:
+        pairs.append((edges[-1], edges[0]))
+    for a, b in pairs:
+        for lane in range(lanes):
+            ET.SubElement(
+                root,
+                "connection",
+                {"from": a.id, "to": b.id, "fromLane": str(lane), "toLane": str(lane)},
+            )
+    write_xml(root, path)
+
+
+def write_routes(path: Path, route_id: str, edge_ids: Sequence[str], repeat: int = 0) -> None:
+    root = ET.Element("routes")
+    attrs = {"id": route_id, "edges": " ".join(edge_ids)}
+    if repeat:
+        attrs["repeat"] = str(repeat)
+    ET.SubElement(root, "route", attrs)
+    write_xml(root, path)
+
+
+def write_vtypes(path: Path) -> None:
+    """The project's vehicle types, shared by every scenario.
+
+    Agents get a huge lcAccelLat so `changeSublane(v, d)` moves exactly d metres in one step,
+    and sigma 0 because the policy (not Krauss) drives.
+    """
+    agent = {
+        "vClass": "passenger",
+        "length": "5",
+        "width": "1.8",
+        "minGap": "2.5",
+        "maxSpeed": "50",
+        "speedFactor": "1",
+        "speedDev": "0",
+        "accel": "3.0",
+        "decel": "7.5",
+        "emergencyDecel": "9",
+        "carFollowModel": "Krauss",
+        "sigma": "0",
+        "lcModel": "SL2015",
+        "lcAccelLat": "100",
+        "maxSpeedLat": "5",
+        "latAlignment": "center",
+    }
+    sumo_driven = {
+        "vClass": "passenger",
+        "length": "5",
+        "width": "1.8",
+        "minGap": "2.5",
+        "carFollowModel": "Krauss",
+        "lcModel": "SL2015",
+    }
+    root = ET.Element("additional")
+    ET.SubElement(root, "vType", id="behave_keeper", color="0,200,0", **agent)
+    ET.SubElement(root, "vType", id="behave_overtaker", color="230,120,0", **agent)
+    ET.SubElement(
+        root,
+        "vType",
+        id="behave_passive",
+        color="0,0,255",
+        maxSpeed="20",
+        speedFactor="1",
+        speedDev="0",
+        sigma="0",
+        **sumo_driven,
+    )
+    ET.SubElement(
+        root,
+        "vType",
+        id="behave_background",
+        color="150,150,150",
+        sigma="0.5",
+        speedFactor="norm(1,0.1)",
+        **sumo_driven,
+    )
+    write_xml(root, path)
+
+
+def utm_location(edges: Sequence[EdgeSpec]) -> ET.Element:
+    """A <location> for nodes given in real UTM-32 metres, so `--fcd-output.geo` works."""
+    xs = [x for e in edges for x, _ in e.shape]
+    ys = [y for e in edges for _, y in e.shape]
+    return ET.Element(
+        "location",
+        netOffset="0.00,0.00",
+        convBoundary=",".join(fmt(v) for v in (min(xs), min(ys), max(xs), max(ys))),
+        origBoundary=HIGHWAY_LONLAT_BOUNDARY,
+        projParameter=UTM32,
+    )
+
+
+def netconvert(out_dir: Path, name: str) -> Path:
+    """Run netconvert on <name>.nod/.edg/.con.xml in out_dir (relative paths: no temp dirs leak
+    into the committed net's header)."""
+    net = f"{name}.net.xml"
+    cmd = [
+        sumo_binary("netconvert"),
+        "-n", f"{name}.nod.xml",
+        "-e", f"{name}.edg.xml",
+        "-x", f"{name}.con.xml",
+        "-o", net,
+        *NETCONVERT_OPTIONS,
+    ]  # fmt: skip
+    try:
+        subprocess.run(cmd, cwd=out_dir, check=True, capture_output=True, text=True)
+    except subprocess.CalledProcessError as err:
+        message = (err.stderr or err.stdout).strip()
+        raise BehaveError(f"netconvert failed for scenario '{name}': {message}") from None
+    return out_dir / net
+
+
+def shared_vtypes(out_dir: Path) -> Path:
+    """The vTypes file for a scenario built into out_dir: <out_dir>/../common/vtypes.add.xml."""
+    path = out_dir.parent / "common" / VTYPES_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_vtypes(path)
+    return path
+
+
+def build_network(
+    out_dir: Path,
+    name: str,
+    edges: Sequence[EdgeSpec],
+    *,
+    lanes: int,
+    lane_width: float,
+    speed: float,
+    closed: bool,
+    location: ET.Element | None = None,
+) -> Path:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_nodes(out_dir / f"{name}.nod.xml", edges, location)
+    write_edges(out_dir / f"{name}.edg.xml", edges, lanes, lane_width, speed)
+    write_connections(out_dir / f"{name}.con.xml", edges, lanes, closed)
+    return netconvert(out_dir, name)
+
+
+def build_ring(
+    out_dir: Path,
+    *,
+    name: str = "ring",
+    radius: float = 200.0,
+    straight: float = 870.0,
+    lanes: int = 3,
+    lane_width: float = 3.5,
+    edge_length: float = 300.0,
+    speed: float = 33.33,
+) -> Scenario:
+    """A closed oval (two straights, two semicircles); the route `loop` circles it for 100,000 s."""
+    edges = ring_edges(radius, straight, edge_length)
+    net = build_network(out_dir, name, edges, lanes=lanes, lane_width=lane_width, speed=speed, closed=True)
+    lap = 2 * straight + 2 * math.pi * radius
+    routes = out_dir / f"{name}.rou.xml"
+    write_routes(routes, "loop", [e.id for e in edges], math.ceil(LOOP_SECONDS * LOOP_MAX_SPEED / lap))
+    return Scenario(
+        name=name,
+        net=net,
+        routes=routes,
+        vtypes=shared_vtypes(out_dir),
+        route_id="loop",
+        looping=True,
+        description=f"closed {lanes}-lane oval, {lap / 1000:.1f} km, curve radius {radius:.0f} m",
+    )
+
+
+def build_straight(
+    out_dir: Path,
+    *,
+    name: str,
+    length: float,
+    edge_length: float,
+    lanes: int,
+    lane_width: float,
+    speed: float = 33.33,
+    geo: bool = False,
+    description: str,
+) -> Scenario:
+    """A straight road along +x; with geo=True it lies at real UTM-32 coordinates."""
+    edges = straight_edges(length, edge_length, HIGHWAY_ORIGIN if geo else (0.0, 0.0))
+    location = utm_location(edges) if geo else None
+    net = build_network(
+        out_dir,
+        name,
+        edges,
+        lanes=lanes,
+        lane_width=lane_width,
+        speed=speed,
+        closed=False,
+        location=location,
+    )
+    routes = out_dir / f"{name}.rou.xml"
+    write_routes(routes, "main", [e.id for e in edges])
+    return Scenario(
+        name=name,
+        net=net,
+        routes=routes,
+        vtypes=shared_vtypes(out_dir),
+        route_id="main",
+        looping=False,
+        description=description,
+    )
+
+
+def build_named(name: str, out_dir: Path) -> Scenario:
+    """Build one of the bundled scenarios (see SCENARIO_NAMES) into out_dir."""
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    if name == "ring":
+        return replace(build_ring(out_dir), description=DESCRIPTIONS["ring"])
+    if name == "highway":
+        return build_straight(
+            out_dir,
+            name="highway",
+            length=HIGHWAY_LENGTH,
+            edge_length=300.0,
+            lanes=3,
+            lane_width=3.5,
+            geo=True,
+            description=DESCRIPTIONS["highway"],
+        )
+    if name == "tiny":
+        return build_straight(
+            out_dir,
+            name="tiny",
+            length=600.0,
+            edge_length=300.0,
+            lanes=2,
+            lane_width=3.2,
+            description=DESCRIPTIONS["tiny"],
+        )
+    raise BehaveError(f"no builder for scenario '{name}'")
