@@ -18,6 +18,7 @@ from behaviors.geometry import RoadGeometry
 from behaviors.rewards import NO_PROGRESS_SPEED
 from behaviors.sensors import AgentFrame, observe
 from behaviors.sim import AgentReadings, SumoSim, VehicleState
+from behaviors.timing import PhaseTimer
 
 
 @dataclass(frozen=True)
@@ -62,7 +63,8 @@ def road_frame(
 class Fleet:
     """State and stepping of N learned agents (row i = `ids[i]`), vectorised."""
 
-    def __init__(self, geometry: RoadGeometry, car: CarModel, dt: float) -> None:
+    def __init__(self, geometry: RoadGeometry, car: CarModel, dt: float, timer: PhaseTimer) -> None:
+        self.timer = timer
         self.geometry = geometry
         self.car = car
         self.dt = dt
@@ -93,8 +95,13 @@ class Fleet:
 
     def sense(self, sim: SumoSim, vehicles: VehicleState, with_id: bool) -> np.ndarray:
         """Read the agents' lanes from SUMO and return their observations [N, 65 or 66]."""
-        readings = sim.read_agents(self.ids)
-        rows = np.array([vehicles.row[vid] for vid in self.ids], np.int64)
+        with self.timer.phase("read"):
+            readings = sim.read_agents(self.ids)
+            rows = np.array([vehicles.row[vid] for vid in self.ids], np.int64)
+        with self.timer.phase("sensors"):
+            return self._observe(readings, vehicles, rows, with_id)
+
+    def _observe(self, readings: AgentReadings, vehicles: VehicleState, rows: np.ndarray, with_id: bool):
         self.frame = road_frame(self.geometry, readings, vehicles.position[rows], self.angle, self.car)
         centres = vehicles.position.copy()
         centres[rows] = self.frame.centre  # agents' centres are known exactly; others' fronts suffice
@@ -112,18 +119,12 @@ class Fleet:
         f = self.frame
         if f is None:
             raise RuntimeError("Fleet.act before Fleet.sense")
-        result = actuate(
-            actions,
-            self.speed,
-            self.angle,
-            f.offset,
-            f.half_width,
-            f.curvature,
-            f.speed_limit,
-            self.dt,
-            self.car,
-        )
-        sim.command_agents(self.ids, result.lane_speed, result.lateral_move)
+        with self.timer.phase("actuation"):
+            result = actuate(
+                actions, self.speed, self.angle, f.offset, f.half_width, f.curvature, f.speed_limit,
+                self.dt, self.car,
+            )  # fmt: skip
+            sim.command_agents(self.ids, result.lane_speed, result.lateral_move)
         self.speed, self.angle = result.speed, result.angle
         self.slow_time = np.where(result.speed < NO_PROGRESS_SPEED, self.slow_time + self.dt, 0.0)
         return result

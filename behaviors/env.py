@@ -22,6 +22,7 @@ from behaviors.geometry import RoadGeometry, load_geometry
 from behaviors.rewards import NO_PROGRESS_SECONDS, RewardTerms, race_positions, step_rewards
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT
 from behaviors.sim import SimOptions, SumoSim
+from behaviors.timing import PhaseTimer
 from sumo_scenarios import SCENARIO_NAMES, Scenario, get_scenario, route_edges
 
 BEHAVIOURS = ("lanekeeping", "overtaking", "multi")
@@ -37,7 +38,7 @@ ROUTE_SECONDS = 3600.0
 class EnvConfig:
     """Everything that defines an episode; `validate` names any impossible combination."""
 
-    scenario: str = "ring"
+    scenario: str | Scenario = "ring"  # a bundled name, or a Scenario built by sumo_scenarios.build_ring
     behaviour: str = "lanekeeping"
     agents: int = 6
     overtakers: int = 0
@@ -55,7 +56,7 @@ class EnvConfig:
             raise BehaveError(f"unknown behaviour '{self.behaviour}' (choose from {', '.join(BEHAVIOURS)})")
         if self.placement not in PLACEMENTS:
             raise BehaveError(f"unknown placement '{self.placement}' (choose from {', '.join(PLACEMENTS)})")
-        if self.scenario not in SCENARIO_NAMES:
+        if isinstance(self.scenario, str) and self.scenario not in SCENARIO_NAMES:
             get_scenario(self.scenario)  # raises with the list of choices
         if self.behaviour == "multi":
             if self.overtakers < 0 or self.keepers < 0 or self.overtakers + self.keepers == 0:
@@ -131,7 +132,9 @@ class BehaveEnv(ParallelEnv):
     def __init__(self, config: EnvConfig) -> None:
         config.validate()
         self.config = config
-        self.scenario: Scenario = get_scenario(config.scenario)
+        self.scenario: Scenario = (
+            config.scenario if isinstance(config.scenario, Scenario) else get_scenario(config.scenario)
+        )
         self.geometry: RoadGeometry = load_geometry(self.scenario.net)
         self.lap = route_edges(self.scenario)
         self.slot_behaviour = config.behaviour_ids()
@@ -141,7 +144,8 @@ class BehaveEnv(ParallelEnv):
         self._act_space = action_space()
         self._check_capacity()
         self.sim: SumoSim | None = None
-        self.fleet = Fleet(self.geometry, config.car, config.step_length)
+        self.timer = PhaseTimer()
+        self.fleet = Fleet(self.geometry, config.car, config.step_length, self.timer)
         self.agents: list[str] = []
         self._rng = np.random.default_rng(config.seed)
         self._seed = config.seed
@@ -214,10 +218,12 @@ class BehaveEnv(ParallelEnv):
         slots = self.live_slots
         last_obs = self.live_obs
         actuation = fleet.act(sim, actions)
-        sim.step()
+        with self.timer.phase("sumo"):
+            sim.step()
         self.steps += 1
-        contact = sim.collisions()
-        vehicles = sim.read_vehicles()
+        with self.timer.phase("read"):
+            contact = sim.collisions()
+            vehicles = sim.read_vehicles()
         present = np.array([vid in vehicles.row for vid in fleet.ids], bool)
         next_obs = last_obs.copy()  # an agent that left keeps its last observation
         if not present.all():
@@ -277,7 +283,7 @@ class BehaveEnv(ParallelEnv):
         if needed > usable:
             most = int(usable / self.config.spacing * lanes)
             raise BehaveError(
-                f"{cars} cars do not fit on scenario '{self.config.scenario}' "
+                f"{cars} cars do not fit on scenario '{self.scenario.name}' "
                 f"({route_length:.0f} m, {lanes} lanes, {self.config.spacing:.0f} m spacing): "
                 f"at most about {most}"
             )
@@ -323,7 +329,7 @@ class BehaveEnv(ParallelEnv):
             raise BehaveError(f"SUMO could not insert {len(missing)} cars (spacing too small for the road)")
         self.car_ids = vids
         self.agents = list(agent_ids)
-        self.fleet = Fleet(self.geometry, cfg.car, cfg.step_length)
+        self.fleet = Fleet(self.geometry, cfg.car, cfg.step_length, self.timer)
         self.fleet.add(agent_ids, np.zeros(len(agent_ids)), self.slot_behaviour)
         self.progress = self.start_progress.copy()
         self._agent_car_index = np.arange(cfg.n_opponents, cars)
@@ -405,7 +411,7 @@ def action_space() -> spaces.Box:
 
 
 def make_env(
-    scenario: str = "ring",
+    scenario: str | Scenario = "ring",
     *,
     behaviour: str = "lanekeeping",
     agents: int = 6,

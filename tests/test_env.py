@@ -1,0 +1,258 @@
+"""The environment on real SUMO (libsumo): actuation, terminations, API, determinism, bad input."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pettingzoo.test import parallel_api_test
+
+from behaviors import BehaveError, make_env
+from behaviors.actuation import CarModel
+from behaviors.env import EnvConfig
+from behaviors.rewards import COLLISION_PENALTY, OFF_TRACK_PENALTY
+from behaviors.sensors import SLICES
+from behaviors.sumo_home import sumo_binary
+
+CAR = CarModel()
+
+
+def keep_lane(obs: np.ndarray, speed: float = 20.0, lanes: int = 3) -> np.ndarray:
+    """A scripted driver: steer to the nearest lane centre, drive at about `speed` m/s."""
+    angle = obs[:, SLICES["angle"]][:, 0] * np.pi
+    v = obs[:, SLICES["speedX"]][:, 0] * 300 / 3.6
+    track_pos = obs[:, SLICES["trackPos"]][:, 0]
+    lane = np.clip(np.floor((track_pos + 1) / 2 * lanes), 0, lanes - 1)
+    target = (lane + 0.5) * 2 / lanes - 1
+    steer = np.clip(-4 * angle - 1.5 * (track_pos - target), -1, 1)
+    return np.stack([steer, np.clip((speed - v) * 0.3, 0, 1), np.clip((v - speed - 2) * 0.3, 0, 1)], 1)
+
+
+def offset_of(env, slot: int) -> float:
+    row = env.fleet.ids.index(env.possible_agents[slot])
+    return float(env.fleet.frame.offset[row])
+
+
+@pytest.fixture
+def tiny():
+    env = make_env("tiny", agents=1, seed=3, max_steps=400)
+    yield env
+    env.close()
+
+
+def drive(env, actions_fn, steps):
+    batch = None
+    for _ in range(steps):
+        if not env.agents:
+            break
+        batch = env.step_arrays(actions_fn(env.live_obs).astype(np.float32))
+    return batch
+
+
+def test_a_steer_command_moves_the_car_sideways_by_the_expected_amount(tiny):
+    tiny.reset_arrays(3)
+    drive(tiny, lambda o: np.array([[0.0, 1.0, 0.0]]), 30)  # 30 steps at full throttle: 18 m/s
+    v0 = tiny.fleet.speed[0]
+    before = offset_of(tiny, 0)
+    tiny.step_arrays(np.array([[0.5, 0.0, 0.0]], np.float32))
+    dt = tiny.config.step_length
+    yaw = 0.5 * min(v0 * np.tan(CAR.max_steer) / CAR.wheelbase, CAR.max_lateral_accel / v0)
+    expected = v0 * np.sin(yaw * dt) * dt  # straight road: no curvature term
+    assert offset_of(tiny, 0) - before == pytest.approx(expected, abs=1e-3)
+    assert expected > 0.05  # a real move, to the left
+    # the heading persists: with steer 0 the car keeps drifting by the same angle
+    before = offset_of(tiny, 0)
+    tiny.step_arrays(np.array([[0.0, 0.0, 0.0]], np.float32))
+    assert offset_of(tiny, 0) - before == pytest.approx(v0 * np.sin(yaw * dt) * dt, abs=1e-3)
+
+
+def test_brake_stops_the_car(tiny):
+    tiny.reset_arrays(3)
+    drive(tiny, lambda o: np.array([[0.0, 1.0, 0.0]]), 40)
+    assert tiny.fleet.speed[0] > 20
+    drive(tiny, lambda o: np.array([[0.0, 0.0, 1.0]]), 17)  # 24 m/s - 7.5 m/s^2 * 0.2 s * 17 < 0
+    assert tiny.fleet.speed[0] == 0.0
+    pos = tiny.sim.read_vehicles().position.copy()
+    tiny.step_arrays(np.array([[0.0, 0.0, 1.0]], np.float32))
+    np.testing.assert_allclose(tiny.sim.read_vehicles().position, pos)
+
+
+def test_steering_into_the_border_is_off_track_and_removes_the_agent(tiny):
+    tiny.reset_arrays(3)
+    drive(tiny, lambda o: np.array([[0.0, 1.0, 0.0]]), 20)
+    batch = drive(tiny, lambda o: np.array([[1.0, 0.5, 0.0]]), 100)
+    assert batch.terminated[0] and batch.off_track[0] and not batch.truncated[0]
+    assert batch.terms.off_track[0] == OFF_TRACK_PENALTY
+    assert tiny.agents == [] and "agent_0" not in tiny.sim.vehicle_ids()
+
+
+def test_a_rear_end_collision_removes_the_crashed_agents_and_the_others_drive_on():
+    env = make_env("tiny", agents=3, seed=1, max_steps=300)
+    try:
+        env.reset_arrays(1)
+        lanes = {vid: env.sim._sumo.vehicle.getLaneIndex(vid) for vid in env.agents}
+        assert lanes["agent_0"] == lanes["agent_2"] != lanes["agent_1"]  # 0 ahead of 2, 1 beside
+
+        def crash(obs):
+            act = keep_lane(obs, lanes=2)
+            live = list(env.agents)
+            if "agent_0" in live:
+                act[live.index("agent_0")] = [0.0, 0.0, 1.0]  # the leader stands
+            if "agent_2" in live:
+                act[live.index("agent_2")] = [0.0, 1.0, 0.0]  # the follower floors it
+            return act
+
+        collided = set()
+        for _ in range(100):
+            slots = env.live_slots
+            batch = env.step_arrays(crash(env.live_obs).astype(np.float32))
+            collided |= {int(s) for s in slots[batch.collided]}
+            if collided:
+                assert (batch.terms.collision[batch.collided] == COLLISION_PENALTY).all()
+                assert batch.terminated[batch.collided].all()
+                break
+        assert collided == {0, 2}
+        assert env.agents == ["agent_1"]
+        assert set(env.sim.vehicle_ids()) == {"agent_1"}
+        before = env.progress[env._car_row["agent_1"]]
+        drive(env, lambda o: keep_lane(o, lanes=2), 10)
+        assert env.progress[env._car_row["agent_1"]] > before + 10
+    finally:
+        env.close()
+
+
+def test_no_progress_terminates_after_five_seconds_standing(tiny):
+    tiny.reset_arrays(3)
+    batch = drive(tiny, lambda o: np.array([[0.0, 0.0, 1.0]]), 30)
+    assert batch.terminated[0] and batch.no_progress[0]
+    assert tiny.steps == 25  # 5 s at 0.2 s per step
+
+
+def test_the_time_limit_truncates_and_keeps_the_last_observation():
+    env = make_env("ring", agents=2, seed=0, max_steps=20)
+    try:
+        env.reset_arrays(0)
+        batch = drive(env, keep_lane, 20)
+        assert batch.truncated.all() and not batch.terminated.any()
+        assert np.abs(batch.next_obs).sum() > 0
+        assert env.agents == []
+    finally:
+        env.close()
+
+
+def test_parallel_api_test_passes():
+    env = make_env("tiny", agents=2, seed=0, max_steps=60)
+    try:
+        parallel_api_test(env, num_cycles=200)
+    finally:
+        env.close()
+
+
+def test_same_seed_and_actions_give_identical_observations_over_200_steps():
+    def run() -> np.ndarray:
+        env = make_env("ring", behaviour="overtaking", agents=3, opponents=3, seed=11, max_steps=200)
+        try:
+            rng = np.random.default_rng(5)
+            trace = [env.reset_arrays(11)]
+            for _ in range(200):
+                if not env.agents:
+                    break
+                act = keep_lane(env.live_obs) + rng.normal(0, 0.1, (len(env.agents), 3))
+                trace.append(env.step_arrays(act.astype(np.float32)).next_obs)
+            return np.concatenate(trace)
+        finally:
+            env.close()
+
+    first, second = run(), run()
+    assert len(first) > 3 * 150
+    np.testing.assert_array_equal(first, second)
+
+
+def test_multi_behaviour_placements_put_the_ids_where_asked():
+    assert EnvConfig(behaviour="multi", overtakers=2, keepers=2, placement="A").behaviour_ids().tolist() == [
+        1,
+        1,
+        0,
+        0,
+    ]
+    assert EnvConfig(behaviour="multi", overtakers=2, keepers=2, placement="B").behaviour_ids().tolist() == [
+        0,
+        0,
+        1,
+        1,
+    ]
+    mixed = EnvConfig(behaviour="multi", overtakers=2, keepers=2, placement="C").behaviour_ids().tolist()
+    assert sorted(mixed) == [0, 0, 1, 1] and mixed not in ([1, 1, 0, 0], [0, 0, 1, 1])
+    env = make_env("ring", behaviour="multi", overtakers=2, keepers=3, placement="A", seed=2)
+    try:
+        obs = env.reset_arrays(2)
+        assert obs.shape == (5, 66)
+        assert obs[:, -1].tolist() == [1, 1, 0, 0, 0]
+        types = [env.sim._sumo.vehicle.getTypeID(v) for v in env.agents]
+        assert types == ["behave_overtaker"] * 2 + ["behave_keeper"] * 3
+    finally:
+        env.close()
+
+
+def test_overtaking_puts_slower_passive_cars_ahead():
+    env = make_env("ring", behaviour="overtaking", agents=3, opponents=2, seed=4)
+    try:
+        env.reset_arrays(4)
+        passive = [v for v in env.sim.vehicle_ids() if v.startswith("passive_")]
+        assert len(passive) == 2
+        agent_progress = [env.progress[env._car_row[a]] for a in env.agents]
+        assert min(env.progress[env._car_row[p]] for p in passive) > max(agent_progress)
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"agents": 0}, "at least one agent"),
+        ({"agents": 5000}, "do not fit"),
+        ({"behaviour": "drifting"}, "unknown behaviour 'drifting'"),
+        ({"behaviour": "multi", "placement": "D", "overtakers": 1, "keepers": 1}, "unknown placement 'D'"),
+        ({"behaviour": "multi"}, "multi needs"),
+        ({"scenario": "moon"}, "unknown scenario 'moon'"),
+    ],
+)
+def test_bad_options_raise_a_clear_error(kwargs, message):
+    with pytest.raises(BehaveError, match=message):
+        make_env(**kwargs)
+
+
+def write_net(tmp: Path, lanes: int) -> Path:
+    (tmp / "n.nod.xml").write_text('<nodes><node id="a" x="0" y="0"/><node id="b" x="200" y="0"/></nodes>')
+    (tmp / "n.edg.xml").write_text(f'<edges><edge id="e" from="a" to="b" numLanes="{lanes}"/></edges>')
+    net = tmp / "n.net.xml"
+    subprocess.run(
+        [
+            sumo_binary("netconvert"),
+            "-n",
+            str(tmp / "n.nod.xml"),
+            "-e",
+            str(tmp / "n.edg.xml"),
+            "-o",
+            str(net),
+        ],
+        check=True,
+        capture_output=True,
+    )
+    return net
+
+
+def test_bad_network_files_raise_a_clear_error(tmp_path):
+    from behaviors.geometry import load_geometry
+
+    with pytest.raises(BehaveError, match="network file not found"):
+        load_geometry(tmp_path / "missing.net.xml")
+    broken = tmp_path / "broken.net.xml"
+    broken.write_text("<net><edge id=")
+    with pytest.raises(BehaveError, match="cannot read network"):
+        load_geometry(broken)
+    with pytest.raises(BehaveError, match="no multi-lane edge"):
+        load_geometry(write_net(tmp_path, lanes=1))
+    assert load_geometry(write_net(tmp_path, lanes=2)).edges["e"].lanes == 2

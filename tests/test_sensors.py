@@ -1,0 +1,153 @@
+"""Sensors against geometry computed by hand (pure numpy, plus the shipped ring's shapes)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from behaviors.geometry import RAY_RANGE, build_geometry, load_geometry
+from behaviors.sensors import (
+    OBS_SIZE,
+    OBS_SIZE_WITH_ID,
+    SLICES,
+    TRACK_RAY_ANGLES,
+    AgentFrame,
+    engine_rpm,
+    observe,
+    opponent_rays,
+    track_rays,
+)
+from sumo_scenarios import get_scenario
+
+LANE_WIDTH = 3.2
+HALF = LANE_WIDTH  # two lanes: the carriageway spans y in [-3.2, 3.2]
+
+
+@pytest.fixture(scope="module")
+def straight():
+    """A 1 km two-lane road along +x, centred on y = 0, in three edges."""
+    edges = []
+    for k, (x0, x1) in enumerate([(0, 300), (300, 700), (700, 1000)]):
+        lanes = [
+            (f"e{k}_{i}", [(x0, y), (x1, y)], LANE_WIDTH, 30.0, x1 - x0)
+            for i, y in enumerate((-LANE_WIDTH / 2, LANE_WIDTH / 2))
+        ]
+        edges.append((f"e{k}", lanes, True))
+    return build_geometry(edges, [("e0", "e1"), ("e1", "e2")])
+
+
+def analytic_straight_rays(offset: float, heading: float) -> np.ndarray:
+    s = np.sin(heading + TRACK_RAY_ANGLES)
+    with np.errstate(divide="ignore"):
+        d = np.where(s > 0, (HALF - offset) / s, (-HALF - offset) / s)
+    return np.where((np.abs(s) < 1e-12) | (d > RAY_RANGE), RAY_RANGE, d)
+
+
+@pytest.mark.parametrize("offset", [0.0, 1.1, -2.3])
+@pytest.mark.parametrize("heading_deg", [0.0, 7.0, -20.0, 45.0])
+def test_track_rays_match_the_analytic_distance_to_the_borders(straight, offset, heading_deg):
+    heading = np.deg2rad(heading_deg)
+    rays = track_rays(np.array([[420.0, offset]]), np.array([heading]), straight)[0]
+    np.testing.assert_allclose(rays, analytic_straight_rays(offset, heading), atol=0.05)
+
+
+def test_track_rays_are_vectorised_over_agents(straight):
+    origins = np.array([[100.0, 0.5], [500.0, -1.0], [650.0, 2.0]])
+    headings = np.deg2rad([3.0, -12.0, 30.0])
+    together = track_rays(origins, headings, straight)
+    for i in range(3):
+        np.testing.assert_allclose(
+            together[i], track_rays(origins[i : i + 1], headings[i : i + 1], straight)[0]
+        )
+
+
+def test_ray_along_a_straight_road_sees_nothing_within_range(straight):
+    rays = track_rays(np.array([[300.0, 0.0]]), np.array([0.0]), straight)[0]
+    assert rays[9] == RAY_RANGE  # straight ahead, parallel to both borders
+
+
+def test_ring_side_rays_measure_the_distance_to_both_borders_on_curves():
+    scenario = get_scenario("ring")
+    geometry = load_geometry(scenario.net)
+    import sumolib
+
+    net = sumolib.net.readNet(str(scenario.net))
+    checked = 0
+    for edge in net.getEdges():
+        lanes = edge.getLanes()
+        for number, lane in enumerate(lanes):
+            shape = np.asarray(lane.getShape())
+            if len(shape) < 10:
+                continue  # a straight edge: covered by the straight-road test
+            mid = len(shape) // 2
+            point = (shape[mid - 1] + shape[mid]) / 2
+            pos = np.sum(np.linalg.norm(np.diff(shape[:mid], axis=0), axis=1))
+            pos += np.linalg.norm(point - shape[mid - 1])
+            row = geometry.lane_index[lane.getID()]
+            tangent, curvature = geometry.road_axis(
+                np.array([row]), np.array([pos / geometry.lane_length_scale[row]])
+            )
+            rays = track_rays(point[None], tangent, geometry)[0]
+            width = lane.getWidth()
+            right = (number + 0.5) * width
+            left = (len(lanes) - number - 0.5) * width
+            assert rays[0] == pytest.approx(right, abs=0.05)
+            assert rays[-1] == pytest.approx(left, abs=0.05)
+            assert abs(1 / curvature[0]) == pytest.approx(200.0, rel=0.05)
+            checked += 1
+    assert checked == 6  # two curves, three lanes each
+
+
+def test_opponent_rays_land_in_the_right_sector_at_the_right_distance():
+    origin = np.array([[10.0, 5.0]])
+    heading = np.array([np.deg2rad(30.0)])
+    placed = {  # bearing relative to heading (deg) -> distance
+        5.0: 12.0,  # ahead-left: sector 18
+        -5.0: 20.0,  # ahead-right: sector 17
+        95.0: 7.0,  # left: sector 27
+        -175.0: 40.0,  # behind: sector 0
+        130.0: 250.0,  # out of range: not seen
+    }
+    others = [origin[0]]  # the agent itself is row 0 and must not see itself
+    for bearing, dist in placed.items():
+        a = heading[0] + np.deg2rad(bearing)
+        others.append(origin[0] + dist * np.array([np.cos(a), np.sin(a)]))
+    rays = opponent_rays(origin, heading, np.array(others), np.array([0]))[0]
+    expected = np.full(36, RAY_RANGE)
+    expected[[18, 17, 27, 0]] = [12.0, 20.0, 7.0, 40.0]
+    np.testing.assert_allclose(rays, expected, atol=1e-9)
+
+
+def test_opponent_rays_keep_the_nearest_vehicle_per_sector():
+    origin = np.zeros((1, 2))
+    others = np.array([[50.0, 1.0], [30.0, 1.0], [0.0, 0.0]])
+    rays = opponent_rays(origin, np.zeros(1), others, np.array([2]))[0]
+    assert rays[18] == pytest.approx(np.hypot(30.0, 1.0))
+
+
+def test_observation_layout_and_normalisation(straight):
+    agents = AgentFrame(
+        centre=np.array([[400.0, 1.6]]),
+        heading=np.array([0.1]),
+        angle=np.array([0.1]),
+        speed=np.array([25.0]),
+        track_pos=np.array([0.5]),
+    )
+    obs = observe(agents, np.array([[400.0, 1.6], [430.0, 1.6]]), np.array([0]), straight)
+    assert obs.shape == (1, OBS_SIZE) and obs.dtype == np.float32
+    assert obs[0, SLICES["angle"]][0] == pytest.approx(0.1 / np.pi)
+    assert obs[0, SLICES["trackPos"]][0] == pytest.approx(0.5)
+    assert obs[0, SLICES["speedX"]][0] == pytest.approx(25 * 3.6 * np.cos(0.1) / 300, rel=1e-6)
+    assert obs[0, SLICES["speedY"]][0] == pytest.approx(25 * 3.6 * np.sin(0.1) / 300, rel=1e-6)
+    np.testing.assert_allclose(obs[0, SLICES["wheelSpinVel"]], 25 / 0.3 / 100, rtol=1e-6)
+    assert obs[0, SLICES["opponents"]][18 - 1] == pytest.approx(30.0 / RAY_RANGE)  # 0.1 rad right of heading
+    with_id = observe(agents, np.array([[400.0, 1.6]]), np.array([0]), straight, np.array([1.0]))
+    assert with_id.shape == (1, OBS_SIZE_WITH_ID) and with_id[0, -1] == 1.0
+    np.testing.assert_allclose(with_id[0, :OBS_SIZE][:29], obs[0, :29])
+
+
+def test_engine_rpm_stays_in_the_gear_model_band():
+    speeds = np.linspace(0.0, 50.0, 101)
+    rpm = engine_rpm(speeds)
+    assert rpm.min() >= 800.0 and rpm.max() <= 10000.0
+    assert rpm[-1] > rpm[50]  # top gear: rpm grows with speed
