@@ -60,7 +60,7 @@ def _decorate(space: Axes, lateral: Axes, along: str, title: str) -> None:
     lateral.set_ylabel("lateral position [lanes]")
     lateral.set_xlabel("time [s]")
     low, high = lateral.get_ylim()
-    low, high = min(low, -0.5), max(high, 0.5)
+    low, high = min(low, round(low) - 0.5), max(high, round(high) + 0.5)  # outer lane edges
     for line in range(round(low), round(high) + 1):  # lane lines lie half a lane off centre
         lateral.axhline(line - 0.5, color="black", linewidth=0.6, linestyle="--", alpha=0.5)
     lateral.set_ylim(low - 0.1, high + 0.1)

@@ -1,0 +1,466 @@
+"""`behave train`: PS-DDPG (and the paper's single- and multi-DDPG baselines) on SUMO.
+
+One loop for the three algorithms; what differs is who acts and learns:
+* ps-ddpg: one learner; all live agents act in ONE forward pass, all their
+  transitions go to the shared buffer, and the shared networks get one update
+  per live agent per step (the paper's schedule; `updates_per_step` overrides);
+* ddpg: the same learner with a single agent on the road;
+* multi-ddpg: a learner per agent slot, each updated once per step.
+
+A run directory holds config.json, metrics.csv (one row per episode),
+checkpoints/ (last, best, final, interrupted: policy + critic), state.pt (the
+whole training state for --resume) and curve.png. Everything is written
+atomically; Ctrl-C or SIGTERM stops at the next step and saves.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import signal
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
+from behaviors.ddpg.learner import DDPGConfig, DDPGLearner, IndependentLearners
+from behaviors.env import BEHAVIOURS, BehaveEnv, EnvConfig
+from behaviors.errors import BehaveError
+from behaviors.files import atomic_write_bytes, atomic_write_text, ensure_writable_dir
+from behaviors.sensors import OBSERVATION_LAYOUT
+
+ALGORITHMS = ("ps-ddpg", "ddpg", "multi-ddpg")
+STATE_VERSION = 1
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """A training run; saved as config.json and checked again on --resume."""
+
+    behaviour: str = "lanekeeping"
+    algo: str = "ps-ddpg"
+    scenario: str = "ring"
+    agents: int = 6
+    overtakers: int = 0
+    keepers: int = 0
+    placement: str = "C"
+    opponents: int | None = None
+    episodes: int = 100
+    max_steps: int = 1000
+    step_length: float = 0.2
+    seed: int = 0
+    updates_per_step: int | None = None  # None: one per live agent (the paper)
+    hidden: tuple[int, ...] = (256, 256)
+    batch_size: int = 64
+    gamma: float = 0.99
+    tau: float = 0.001
+    actor_lr: float = 1e-4
+    critic_lr: float = 1e-3
+    buffer_size: int = 100_000
+    warmup: int = 1000
+    explore_decay_steps: int = 100_000
+    batched_updates: bool = False
+    reward_scale: float = 0.01  # rewards are ~100/step in km/h: scaled for the critic, logged raw
+    checkpoint_every: int = 10
+    init: str | None = None  # checkpoint to start from (curriculum: overtaking from lane keeping)
+
+    def validate(self) -> None:
+        if self.algo not in ALGORITHMS:
+            raise BehaveError(f"unknown algorithm '{self.algo}' (choose from {', '.join(ALGORITHMS)})")
+        if self.behaviour not in BEHAVIOURS:
+            raise BehaveError(f"unknown behaviour '{self.behaviour}' (choose from {', '.join(BEHAVIOURS)})")
+        if self.episodes < 1:
+            raise BehaveError(f"episodes must be positive, got {self.episodes}")
+        if self.updates_per_step is not None and self.updates_per_step < 0:
+            raise BehaveError(f"updates per step must be >= 0, got {self.updates_per_step}")
+        if not self.hidden or min(self.hidden) < 1:
+            raise BehaveError(f"network sizes must be positive, got {self.hidden}")
+        self.env_config().validate()
+
+    def env_config(self) -> EnvConfig:
+        single = self.algo == "ddpg"
+        return EnvConfig(
+            scenario=self.scenario,
+            behaviour=self.behaviour,
+            agents=1 if single and self.behaviour != "multi" else self.agents,
+            overtakers=self.overtakers,
+            keepers=self.keepers,
+            placement=self.placement,
+            opponents=self.opponents,
+            max_steps=self.max_steps,
+            step_length=self.step_length,
+            seed=self.seed,
+        )
+
+    def ddpg_config(self) -> DDPGConfig:
+        return DDPGConfig(
+            gamma=self.gamma,
+            tau=self.tau,
+            actor_lr=self.actor_lr,
+            critic_lr=self.critic_lr,
+            batch_size=self.batch_size,
+            buffer_size=self.buffer_size,
+            hidden=tuple(self.hidden),
+            warmup=self.warmup,
+            explore_decay_steps=self.explore_decay_steps,
+            batched=self.batched_updates,
+        )
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> TrainConfig:
+        data = json.loads(text)
+        unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise BehaveError(f"config.json has unknown keys: {', '.join(sorted(unknown))}")
+        data["hidden"] = tuple(data["hidden"])
+        return cls(**data)
+
+
+@dataclass
+class EpisodeLog:
+    """Per-step records of one episode, reduced to a metrics row at the end."""
+
+    n_agents: int
+    steps: int = 0
+    colliding_steps: int = 0
+    collisions: int = 0
+    off_tracks: int = 0
+    no_progress: int = 0
+    reward: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    progress: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    speed_sum: float = 0.0
+    agent_steps: int = 0
+
+    def __post_init__(self) -> None:
+        self.reward = np.zeros(self.n_agents)
+        self.progress = np.zeros(self.n_agents)
+
+    def record(self, slots: np.ndarray, batch) -> None:
+        self.steps += 1
+        self.colliding_steps += int(batch.collided.any())
+        self.collisions += int(batch.collided.sum())
+        self.off_tracks += int(batch.off_track.sum())
+        self.no_progress += int(batch.no_progress.sum())
+        np.add.at(self.reward, slots, batch.reward)
+        np.add.at(self.progress, slots, batch.terms.progress)
+        self.speed_sum += float(batch.speed.sum())
+        self.agent_steps += len(slots)
+
+
+def episode_row(
+    episode: int, log: EpisodeLog, wall: float, updates: int, speed_limit: float
+) -> dict[str, Any]:
+    """The metrics.csv row: the paper's system metrics plus per-agent totals."""
+    row: dict[str, Any] = {
+        "episode": episode,
+        "reward_sum": float(log.reward.sum()),
+        "progress_sum": float(log.progress.sum()),
+        "colliding_steps_pct": 100.0 * log.colliding_steps / max(log.steps, 1),
+        "collisions": log.collisions,
+        "off_tracks": log.off_tracks,
+        "no_progress": log.no_progress,
+        "steps": log.steps,
+        "agent_steps": log.agent_steps,
+        "mean_speed_frac": log.speed_sum / max(log.agent_steps, 1) / speed_limit,
+        "wall_s": wall,
+        "updates": updates,
+    }
+    for k, value in enumerate(log.reward):
+        row[f"agent_{k}_reward"] = float(value)
+    return row
+
+
+class Trainer:
+    """Owns the env and the learner(s) of one run; `run()` trains until done or stopped."""
+
+    def __init__(self, config: TrainConfig, out: Path) -> None:
+        config.validate()
+        self.config = config
+        self.out = out
+        torch.set_num_threads(1)  # SUMO runs beside the learner: 2 threads measured 6x slower
+        torch.manual_seed(config.seed)
+        self.env = BehaveEnv(config.env_config())
+        self.obs_dim = self.env.config.obs_size
+        n = self.env.config.n_agents
+        if config.algo == "multi-ddpg":
+            self.learner: DDPGLearner | IndependentLearners = IndependentLearners(
+                n, self.obs_dim, config.ddpg_config(), config.seed
+            )
+        else:
+            self.learner = DDPGLearner(self.obs_dim, config.ddpg_config(), config.seed)
+        self.speed_limit = max(info.speed for info in self.env.geometry.edges.values() if info.normal)
+        self.rows: list[dict[str, Any]] = []
+        self.episode = 0
+        self.best = -np.inf
+        self.stop_requested = False
+
+    # --- policy I/O -------------------------------------------------------------------
+    def meta(self) -> dict[str, Any]:
+        c = self.config
+        behaviours = ["overtaking", "lanekeeping"] if c.behaviour == "multi" else [c.behaviour]
+        return {
+            "algorithm": c.algo,
+            "behaviour": c.behaviour,
+            "behaviours": behaviours,
+            "obs_dim": self.obs_dim,
+            "observation_layout": observation_layout_name(self.obs_dim),
+            "normalisation": "angle/pi, rays/200 m, speeds km/h/300, wheel spin/100, rpm/10000",
+            "hidden": list(c.hidden),
+            "training_steps": self.transitions,
+            "episodes": self.episode,
+            "seed": c.seed,
+            "step_length": c.step_length,
+        }
+
+    @property
+    def transitions(self) -> int:
+        if isinstance(self.learner, IndependentLearners):
+            return sum(lr.transitions for lr in self.learner.learners)
+        return self.learner.transitions
+
+    def _policy_states(self) -> tuple[dict, dict, dict | None]:
+        """Actor and critic to save; multi-ddpg saves its first learner's nets and all in extra."""
+        if isinstance(self.learner, IndependentLearners):
+            first = self.learner.learners[0]
+            extra = {"actors": [lr.actor.state_dict() for lr in self.learner.learners]}
+            return first.actor.state_dict(), first.critic.state_dict(), extra
+        return self.learner.actor.state_dict(), self.learner.critic.state_dict(), None
+
+    def save_policy(self, name: str) -> Path:
+        actor, critic, extra = self._policy_states()
+        path = self.out / "checkpoints" / f"{name}.pt"
+        save_checkpoint(path, actor_state=actor, critic_state=critic, extra_state=extra, meta=self.meta())
+        return path
+
+    def initialise_from(self, path: str) -> None:
+        """Curriculum: copy actor and critic weights (and their targets) from a checkpoint."""
+        ckpt = load_checkpoint(path, expect_obs_dim=self.obs_dim, expect_layout=self.config.behaviour)
+        learners = self.learner.learners if isinstance(self.learner, IndependentLearners) else [self.learner]
+        try:
+            for lr in learners:
+                lr.actor.load_state_dict(ckpt.actor_state)
+                lr.actor_target.load_state_dict(ckpt.actor_state)
+                if ckpt.critic_state is not None:
+                    lr.critic.load_state_dict(ckpt.critic_state)
+                    lr.critic_target.load_state_dict(ckpt.critic_state)
+        except RuntimeError:
+            raise BehaveError(
+                f"{path}: network sizes {ckpt.meta['hidden']} differ from this run's "
+                f"{list(self.config.hidden)}"
+            ) from None
+
+    # --- resume -----------------------------------------------------------------------
+    def save_state(self) -> None:
+        payload = {
+            "version": STATE_VERSION,
+            "episode": self.episode,
+            "best": float(self.best),
+            "learner": self.learner.state_dict(),
+            "config": self.config.to_json(),
+        }
+        buffer = _torch_bytes(payload)
+        atomic_write_bytes(self.out / "state.pt", buffer)
+
+    def load_state(self) -> None:
+        path = self.out / "state.pt"
+        if not path.is_file():
+            raise BehaveError(f"nothing to resume in {self.out}: no state.pt")
+        try:
+            payload = torch.load(path, map_location="cpu", weights_only=False)
+            if payload.get("version") != STATE_VERSION:
+                raise ValueError("version")
+            self.learner.load_state_dict(payload["learner"])
+        except Exception:
+            raise BehaveError(f"{path} is not a behave training state (corrupt or truncated)") from None
+        self.episode = int(payload["episode"])
+        self.best = float(payload["best"])
+        self.rows = read_metrics(self.out / "metrics.csv")[: self.episode]
+
+    # --- the loop ---------------------------------------------------------------------
+    def run(self, on_episode: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
+        with _stop_on_signals(self):
+            try:
+                while self.episode < self.config.episodes and not self.stop_requested:
+                    row = self.run_episode()
+                    if row is None:
+                        break
+                    self.rows.append(row)
+                    self.episode += 1
+                    self._after_episode(row)
+                    if on_episode:
+                        on_episode(row)
+            finally:
+                self.env.close()
+        if self.stop_requested:
+            self.save_policy("interrupted")
+            self.save_state()
+        else:
+            self.save_policy("final")
+            self.save_state()
+        write_metrics(self.out / "metrics.csv", self.rows)
+        plot_curve(self.out / "curve.png", self.rows)
+        return self.rows
+
+    def run_episode(self) -> dict[str, Any] | None:
+        """One episode; None if stopped by a signal (the partial episode is not logged)."""
+        env, learner, c = self.env, self.learner, self.config
+        start = time.perf_counter()
+        updates_before = self._updates()
+        obs = env.reset_arrays(episode_seed(c.seed, self.episode))
+        log = EpisodeLog(env.config.n_agents)
+        while env.agents:
+            if self.stop_requested:
+                return None
+            slots = env.live_slots
+            if isinstance(learner, IndependentLearners):
+                actions = learner.act(obs, slots, explore=True)
+            else:
+                actions = learner.act(obs, explore=True)
+            batch = env.step_arrays(actions)
+            reward = (batch.reward * c.reward_scale).astype(np.float32)
+            terminated = batch.terminated.astype(np.float32)
+            if isinstance(learner, IndependentLearners):
+                learner.observe(obs, actions, reward, batch.next_obs, terminated, slots)
+                learner.update()
+            else:
+                learner.observe(obs, actions, reward, batch.next_obs, terminated)
+                learner.update(len(slots) if c.updates_per_step is None else c.updates_per_step)
+            log.record(slots, batch)
+            obs = env.live_obs
+        return episode_row(
+            self.episode, log, time.perf_counter() - start, self._updates() - updates_before, self.speed_limit
+        )
+
+    def _updates(self) -> int:
+        if isinstance(self.learner, IndependentLearners):
+            return sum(lr.updates for lr in self.learner.learners)
+        return self.learner.updates
+
+    def _after_episode(self, row: dict[str, Any]) -> None:
+        self.save_policy("last")
+        if row["reward_sum"] > self.best:
+            self.best = row["reward_sum"]
+            self.save_policy("best")
+        write_metrics(self.out / "metrics.csv", self.rows)
+        if self.episode % self.config.checkpoint_every == 0:
+            self.save_policy(f"episode_{self.episode:05d}")
+            self.save_state()
+            plot_curve(self.out / "curve.png", self.rows)
+
+
+def observation_layout_name(obs_dim: int) -> str:
+    names = "+".join(name for name, _ in OBSERVATION_LAYOUT)
+    return f"torcs65:{names}" + ("+behaviour_id" if obs_dim == 66 else "")
+
+
+def episode_seed(seed: int, episode: int) -> int:
+    """A distinct, reproducible SUMO/placement seed per episode."""
+    return int(np.random.SeedSequence([seed, episode]).generate_state(1)[0] % (2**31 - 1))
+
+
+def _torch_bytes(payload: dict[str, Any]) -> bytes:
+    import io
+
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    return buffer.getvalue()
+
+
+@contextmanager
+def _stop_on_signals(trainer: Trainer) -> Iterator[None]:
+    """SIGINT/SIGTERM ask the loop to stop at the next step; a second Ctrl-C is not swallowed."""
+
+    def request(signum, frame) -> None:
+        if trainer.stop_requested:
+            raise KeyboardInterrupt
+        trainer.stop_requested = True
+
+    previous = {sig: signal.signal(sig, request) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:
+    import pandas as pd
+
+    atomic_write_text(path, pd.DataFrame(rows).to_csv(index=False))
+
+
+def read_metrics(path: Path) -> list[dict[str, Any]]:
+    import pandas as pd
+
+    if not path.is_file() or path.stat().st_size == 0:
+        return []
+    return pd.read_csv(path).to_dict("records")
+
+
+def plot_curve(path: Path, rows: list[dict[str, Any]]) -> None:
+    """Training curve: system reward per episode and % colliding steps."""
+    if not rows:
+        return
+    import io
+
+    from matplotlib.figure import Figure
+
+    episodes = [r["episode"] for r in rows]
+    fig = Figure(figsize=(8, 5), tight_layout=True)
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    reward = np.array([r["reward_sum"] for r in rows])
+    top.plot(episodes, reward, color="tab:blue", alpha=0.4, label="sum of reward, all agents")
+    if len(reward) >= 5:
+        window = min(20, len(reward))
+        smooth = np.convolve(reward, np.ones(window) / window, mode="valid")
+        top.plot(episodes[window - 1 :], smooth, color="tab:blue", label=f"{window}-episode mean")
+    top.set_ylabel("reward")
+    top.legend(loc="lower right")
+    top.grid(alpha=0.3)
+    bottom.plot(
+        episodes, [r["colliding_steps_pct"] for r in rows], color="tab:red", label="% colliding steps"
+    )
+    bottom.plot(
+        episodes,
+        [100 * r["mean_speed_frac"] for r in rows],
+        color="tab:green",
+        label="mean speed, % of limit",
+    )
+    bottom.set_xlabel("episode")
+    bottom.set_ylabel("%")
+    bottom.legend(loc="upper right")
+    bottom.grid(alpha=0.3)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=100)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def prepare_run(config: TrainConfig, out: Path, *, resume: bool) -> Trainer:
+    """Create (or reopen with --resume) a run directory and its trainer."""
+    if resume:
+        saved = out / "config.json"
+        if not saved.is_file():
+            raise BehaveError(f"nothing to resume in {out}: no config.json")
+        stored = TrainConfig.from_json(saved.read_text())
+        config = dataclasses.replace(stored, episodes=max(config.episodes, stored.episodes))
+    else:
+        if (out / "state.pt").exists():
+            raise BehaveError(f"{out} already holds a run: use --resume or another --out")
+    ensure_writable_dir(out)
+    ensure_writable_dir(out / "checkpoints")
+    trainer = Trainer(config, out)
+    atomic_write_text(out / "config.json", config.to_json())
+    if resume:
+        trainer.load_state()
+    elif config.init:
+        trainer.initialise_from(config.init)
+    return trainer

@@ -1,0 +1,31 @@
+"""The `behave` command line: thin commands that declare options and call the library.
+
+Every user error surfaces as a BehaveError; `main` turns it into one line on
+stderr and exit code 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from behaviors.errors import BehaveError
+from cli import scenario
+
+app = typer.Typer(
+    help="behave: learned, behaviour-based traffic in SUMO (PS-DDPG lane keepers and overtakers).",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+app.add_typer(scenario.app, name="scenario")
+
+
+def main() -> None:
+    """Console-script entry point."""
+    try:
+        app()
+    except BehaveError as exc:
+        print(f"behave: error: {exc}", file=sys.stderr)
+        sys.exit(2)
