@@ -176,6 +176,17 @@ class SumoSim:
             departSpeed=repr(speed),
         )
 
+    def add_free_vehicle(self, vid: str, route: str, vtype: str) -> None:
+        """Insert a vehicle at a random free place of its route's first edge, at its desired speed."""
+        self._sumo.vehicle.add(
+            vid, route, typeID=vtype, depart="now", departLane="random", departPos="random_free",
+            departSpeed="desired",
+        )  # fmt: skip
+
+    def read_speeds(self, ids: Sequence[str]) -> np.ndarray:
+        get_speed = self._sumo.vehicle.getSpeed
+        return np.array([get_speed(i) for i in ids], float)
+
     def take_control(self, ids: Sequence[str]) -> None:
         """Speed mode 0 and lane-change mode 0: SUMO applies no safety, the policy drives."""
         v = self._sumo.vehicle

@@ -21,7 +21,7 @@ import signal
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +33,7 @@ from behaviors.ddpg.learner import DDPGConfig, DDPGLearner, IndependentLearners
 from behaviors.env import BEHAVIOURS, BehaveEnv, EnvConfig
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_write_bytes, atomic_write_text, ensure_writable_dir
+from behaviors.metrics import EpisodeStats, summary
 from behaviors.sensors import OBSERVATION_LAYOUT
 
 ALGORITHMS = ("ps-ddpg", "ddpg", "multi-ddpg")
@@ -69,6 +70,7 @@ class TrainConfig:
     reward_scale: float = 0.01  # rewards are ~100/step in km/h: scaled for the critic, logged raw
     checkpoint_every: int = 10
     init: str | None = None  # checkpoint to start from (curriculum: overtaking from lane keeping)
+    max_minutes: float | None = None  # wall-clock budget: stop after the episode that exceeds it
 
     def validate(self) -> None:
         if self.algo not in ALGORITHMS:
@@ -125,56 +127,15 @@ class TrainConfig:
         return cls(**data)
 
 
-@dataclass
-class EpisodeLog:
-    """Per-step records of one episode, reduced to a metrics row at the end."""
-
-    n_agents: int
-    steps: int = 0
-    colliding_steps: int = 0
-    collisions: int = 0
-    off_tracks: int = 0
-    no_progress: int = 0
-    reward: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    progress: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    speed_sum: float = 0.0
-    agent_steps: int = 0
-
-    def __post_init__(self) -> None:
-        self.reward = np.zeros(self.n_agents)
-        self.progress = np.zeros(self.n_agents)
-
-    def record(self, slots: np.ndarray, batch) -> None:
-        self.steps += 1
-        self.colliding_steps += int(batch.collided.any())
-        self.collisions += int(batch.collided.sum())
-        self.off_tracks += int(batch.off_track.sum())
-        self.no_progress += int(batch.no_progress.sum())
-        np.add.at(self.reward, slots, batch.reward)
-        np.add.at(self.progress, slots, batch.terms.progress)
-        self.speed_sum += float(batch.speed.sum())
-        self.agent_steps += len(slots)
-
-
 def episode_row(
-    episode: int, log: EpisodeLog, wall: float, updates: int, speed_limit: float
+    episode: int, stats: EpisodeStats, wall: float, updates: int, speed_limit: float
 ) -> dict[str, Any]:
-    """The metrics.csv row: the paper's system metrics plus per-agent totals."""
-    row: dict[str, Any] = {
-        "episode": episode,
-        "reward_sum": float(log.reward.sum()),
-        "progress_sum": float(log.progress.sum()),
-        "colliding_steps_pct": 100.0 * log.colliding_steps / max(log.steps, 1),
-        "collisions": log.collisions,
-        "off_tracks": log.off_tracks,
-        "no_progress": log.no_progress,
-        "steps": log.steps,
-        "agent_steps": log.agent_steps,
-        "mean_speed_frac": log.speed_sum / max(log.agent_steps, 1) / speed_limit,
-        "wall_s": wall,
-        "updates": updates,
-    }
-    for k, value in enumerate(log.reward):
+    """The metrics.csv row: the paper's system metrics, wall time, updates, per-agent totals."""
+    row: dict[str, Any] = {"episode": episode, **summary(stats, speed_limit)}
+    row["agent_steps"] = int(stats.speed_steps.sum())
+    row["wall_s"] = wall
+    row["updates"] = updates
+    for k, value in enumerate(stats.reward):
         row[f"agent_{k}_reward"] = float(value)
     return row
 
@@ -242,21 +203,27 @@ class Trainer:
         return path
 
     def initialise_from(self, path: str) -> None:
-        """Curriculum: copy actor and critic weights (and their targets) from a checkpoint."""
-        ckpt = load_checkpoint(path, expect_obs_dim=self.obs_dim, expect_layout=self.config.behaviour)
+        """Curriculum: copy actor and critic weights (and their targets) from a checkpoint.
+
+        A 65-input policy may start a 66-input (multi-behaviour) run: the behaviour id's
+        input weights start at zero, so the new network first drives exactly like the old.
+        """
+        ckpt = load_checkpoint(path)
+        if ckpt.meta["obs_dim"] not in (self.obs_dim, self.obs_dim - 1):
+            load_checkpoint(path, expect_obs_dim=self.obs_dim, expect_layout=self.config.behaviour)
+        actor = widen_inputs(ckpt.actor_state, self.obs_dim, obs_first=True)
+        critic = ckpt.critic_state and widen_inputs(ckpt.critic_state, self.obs_dim, obs_first=False)
         learners = self.learner.learners if isinstance(self.learner, IndependentLearners) else [self.learner]
         try:
             for lr in learners:
-                lr.actor.load_state_dict(ckpt.actor_state)
-                lr.actor_target.load_state_dict(ckpt.actor_state)
-                if ckpt.critic_state is not None:
-                    lr.critic.load_state_dict(ckpt.critic_state)
-                    lr.critic_target.load_state_dict(ckpt.critic_state)
+                lr.actor.load_state_dict(actor)
+                lr.actor_target.load_state_dict(actor)
+                if critic is not None:
+                    lr.critic.load_state_dict(critic)
+                    lr.critic_target.load_state_dict(critic)
         except RuntimeError:
-            raise BehaveError(
-                f"{path}: network sizes {ckpt.meta['hidden']} differ from this run's "
-                f"{list(self.config.hidden)}"
-            ) from None
+            sizes = f"{ckpt.meta['hidden']} vs this run's {list(self.config.hidden)}"
+            raise BehaveError(f"{path}: network sizes differ ({sizes})") from None
 
     # --- resume -----------------------------------------------------------------------
     def save_state(self) -> None:
@@ -288,8 +255,14 @@ class Trainer:
     # --- the loop ---------------------------------------------------------------------
     def run(self, on_episode: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
         with _stop_on_signals(self):
+            started = time.perf_counter()
+            budget = np.inf if self.config.max_minutes is None else 60.0 * self.config.max_minutes
             try:
-                while self.episode < self.config.episodes and not self.stop_requested:
+                while (
+                    self.episode < self.config.episodes
+                    and not self.stop_requested
+                    and time.perf_counter() - started < budget
+                ):
                     row = self.run_episode()
                     if row is None:
                         break
@@ -316,7 +289,7 @@ class Trainer:
         start = time.perf_counter()
         updates_before = self._updates()
         obs = env.reset_arrays(episode_seed(c.seed, self.episode))
-        log = EpisodeLog(env.config.n_agents)
+        log = EpisodeStats(env.config.n_agents, env.slot_behaviour.copy())
         while env.agents:
             if self.stop_requested:
                 return None
@@ -355,6 +328,21 @@ class Trainer:
             self.save_policy(f"episode_{self.episode:05d}")
             self.save_state()
             plot_curve(self.out / "curve.png", self.rows)
+
+
+def widen_inputs(state: dict, obs_dim: int, obs_first: bool) -> dict:
+    """A state dict whose first layer gets zero weights for inputs it did not have (the behaviour id).
+
+    The critic's first layer sees [observation, action]: the new column goes between them.
+    """
+    key = next(k for k in state if k.endswith("weight"))
+    weight = state[key]
+    missing = obs_dim - (weight.shape[1] - (0 if obs_first else 3))
+    if missing <= 0:
+        return state
+    zeros = torch.zeros(weight.shape[0], missing, dtype=weight.dtype)
+    split = weight.shape[1] if obs_first else weight.shape[1] - 3
+    return {**state, key: torch.cat([weight[:, :split], zeros, weight[:, split:]], dim=1)}
 
 
 def observation_layout_name(obs_dim: int) -> str:

@@ -11,7 +11,7 @@ import sys
 import typer
 
 from behaviors.errors import BehaveError
-from cli import scenario
+from cli import export, populate, scenario, train
 
 app = typer.Typer(
     help="behave: learned, behaviour-based traffic in SUMO (PS-DDPG lane keepers and overtakers).",
@@ -20,6 +20,10 @@ app = typer.Typer(
     add_completion=False,
 )
 app.add_typer(scenario.app, name="scenario")
+app.command("train")(train.train)
+app.command("populate")(populate.populate_command)
+app.command("export")(export.export_command)
+app.command("plot")(export.plot_command)
 
 
 def main() -> None:

@@ -1,0 +1,92 @@
+"""Episode metrics of the paper, shared by training and evaluation.
+
+% colliding steps counts a step once however many agents collide in it;
+colliding steps per agent counts every colliding agent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from behaviors.env import BehaveEnv, StepBatch
+
+
+@dataclass
+class EpisodeStats:
+    """Counters of one evaluation episode (all agents), reduced by `summary`."""
+
+    n_agents: int
+    behaviour_id: np.ndarray
+    steps: int = 0
+    colliding_steps: int = 0
+    agent_colliding_steps: int = 0
+    collisions: int = 0
+    off_tracks: int = 0
+    no_progress: int = 0
+    speed_sum: np.ndarray | None = None
+    speed_steps: np.ndarray | None = None
+    reward: np.ndarray | None = None
+    progress: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.speed_sum = np.zeros(self.n_agents)
+        self.speed_steps = np.zeros(self.n_agents)
+        self.reward = np.zeros(self.n_agents)
+        self.progress = np.zeros(self.n_agents)
+
+    def record(self, slots: np.ndarray, batch: StepBatch) -> None:
+        self.steps += 1
+        self.colliding_steps += int(batch.collided.any())
+        self.agent_colliding_steps += int(batch.collided.sum())
+        self.collisions += int(batch.collided.sum())
+        self.off_tracks += int(batch.off_track.sum())
+        self.no_progress += int(batch.no_progress.sum())
+        np.add.at(self.reward, slots, batch.reward)
+        np.add.at(self.progress, slots, batch.terms.progress)
+        np.add.at(self.speed_sum, slots, batch.speed)
+        np.add.at(self.speed_steps, slots, 1)
+
+
+def summary(stats: EpisodeStats, speed_limit: float, passed: float | None = None) -> dict[str, Any]:
+    """One episode's row: system metrics and per-behaviour mean speeds (fractions of the limit)."""
+    row: dict[str, Any] = {
+        "steps": stats.steps,
+        "reward_per_agent": float(stats.reward.mean()),
+        "progress_per_agent": float(stats.progress.mean()),
+        "colliding_steps_per_agent": stats.agent_colliding_steps / stats.n_agents,
+        "colliding_steps_pct": 100.0 * stats.colliding_steps / max(stats.steps, 1),
+        "reward_sum": float(stats.reward.sum()),
+        "progress_sum": float(stats.progress.sum()),
+        "collisions": stats.collisions,
+        "off_tracks": stats.off_tracks,
+        "no_progress": stats.no_progress,
+        "mean_speed_frac": float(stats.speed_sum.sum() / max(stats.speed_steps.sum(), 1) / speed_limit),
+    }
+    for name, flag in (("overtaker", 1.0), ("keeper", 0.0)):
+        mask = stats.behaviour_id == flag
+        if mask.any():
+            row[f"{name}_speed_frac"] = float(
+                stats.speed_sum[mask].sum() / max(stats.speed_steps[mask].sum(), 1) / speed_limit
+            )
+    if passed is not None:
+        row["passed_frac"] = passed
+    return row
+
+
+def passed_fraction(env: BehaveEnv) -> float | None:
+    """Share of (agent, passive car) pairs where the agent ended ahead of the car it started behind."""
+    n_opp = env.config.n_opponents
+    if n_opp == 0:
+        return None
+    agents = env.progress[n_opp:]
+    passive = env.progress[:n_opp]
+    return float((agents[:, None] > passive[None, :]).mean())
+
+
+def mean_rows(rows: list[dict[str, Any]]) -> dict[str, float]:
+    """Average of every numeric column over episodes."""
+    keys = [k for k in rows[0] if k != "episode" and isinstance(rows[0][k], int | float)]
+    return {k: float(np.mean([r[k] for r in rows if k in r])) for k in keys}

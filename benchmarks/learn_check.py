@@ -1,0 +1,80 @@
+"""Does PS-DDPG learn lane keeping on the ring within a wall-clock budget? (`make learn-check`)
+
+Trains with the library defaults (6 agents on the ring unless told otherwise),
+then evaluates the final policy without exploration and prints the bar the
+project aims for: <= 1% colliding steps, no off-track, mean speed >= 80% of
+the limit. Numbers are reported, never asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+
+from behaviors.ddpg.checkpoint import load_actor
+from behaviors.evaluate import actor_policy, evaluate
+from behaviors.metrics import mean_rows
+from behaviors.train import TrainConfig, prepare_run
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--behaviour", default="lanekeeping")
+    parser.add_argument("--algo", default="ps-ddpg")
+    parser.add_argument("--agents", type=int, default=6)
+    parser.add_argument("--overtakers", type=int, default=0)
+    parser.add_argument("--keepers", type=int, default=0)
+    parser.add_argument("--init", default=None, help="start from this checkpoint (curriculum)")
+    parser.add_argument("--episodes", type=int, default=1000, help="upper bound on training episodes")
+    parser.add_argument("--minutes", type=float, default=10.0, help="wall-clock training budget")
+    parser.add_argument("--eval-episodes", type=int, default=5)
+    parser.add_argument("--eval-agents", type=int, default=None, help="default: as trained")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+
+    config = TrainConfig(
+        behaviour=args.behaviour, algo=args.algo, agents=args.agents, overtakers=args.overtakers,
+        keepers=args.keepers, init=args.init, episodes=args.episodes, max_minutes=args.minutes,
+        seed=args.seed, checkpoint_every=25,
+    )  # fmt: skip
+    out = (
+        args.out or Path("runs") / f"learn-check-{args.behaviour}-{args.algo}-s{args.seed}-{int(time.time())}"
+    )
+    start = time.perf_counter()
+    trainer = prepare_run(config, out, resume=False)
+    rows = trainer.run(lambda row: print(
+        f"episode {row['episode']:4d}  reward {row['reward_sum']:10.0f}  steps {row['steps']:5d}  "
+        f"colliding {row['colliding_steps_pct']:5.2f}%  off-track {row['off_tracks']}  "
+        f"speed {100 * row['mean_speed_frac']:5.1f}%  wall {row['wall_s']:6.1f}s", flush=True))  # fmt: skip
+    wall = time.perf_counter() - start
+
+    env_config = trainer.env.config
+    if args.eval_agents:
+        env_config = dataclasses.replace(env_config, agents=args.eval_agents)
+    actor = load_actor(out / "checkpoints" / "final.pt", expect_obs_dim=env_config.obs_size)
+    results = evaluate(env_config, actor_policy(actor), args.eval_episodes, seed=args.seed)
+    mean = mean_rows(results)
+    print()
+    print(f"run directory           {out}")
+    print(f"training episodes       {len(rows)}")
+    print(f"training wall time      {wall / 60:.1f} min")
+    print(f"evaluation              {args.eval_episodes} episodes x {env_config.n_agents} agents")
+    print(f"% colliding steps       {mean['colliding_steps_pct']:.2f}   (bar <= 1)")
+    print(f"off-tracks (total)      {int(np.sum([r['off_tracks'] for r in results]))}   (bar 0)")
+    print(f"no-progress (total)     {int(np.sum([r['no_progress'] for r in results]))}")
+    print(f"mean speed / limit      {100 * mean['mean_speed_frac']:.1f}%   (bar >= 80)")
+    print(f"steps per episode       {mean['steps']:.0f} of {env_config.max_steps}")
+    if "passed_frac" in mean:
+        print(f"slower cars passed      {100 * mean['passed_frac']:.1f}%")
+    for name in ("overtaker", "keeper"):
+        if f"{name}_speed_frac" in mean:
+            print(f"{name} speed / limit  {100 * mean[f'{name}_speed_frac']:.1f}%")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,132 @@
+"""Train the bundled policies and write their model card (`make pretrained`).
+
+Lane keeping first (PS-DDPG, 6 agents on the ring), then overtaking from the
+lane-keeping weights (the paper's curriculum) and multi-behaviour 4+4 from the
+same weights (the behaviour id's inputs start at zero). Each policy is
+evaluated without exploration; the better of the final and the best-in-training
+checkpoint ships as actor-only weights in behaviors/pretrained/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from behaviors.ddpg.checkpoint import load_actor, save_actor_only
+from behaviors.env import EnvConfig
+from behaviors.evaluate import actor_policy, evaluate
+from behaviors.files import atomic_write_text
+from behaviors.metrics import mean_rows
+
+PRETRAINED = Path(__file__).resolve().parents[1] / "behaviors" / "pretrained"
+
+
+def train_command(name: str, args: list[str], runs: Path, seed: int, minutes: float) -> list[str]:
+    return [sys.executable, "-m", "cli", "train", *args, "--seed", str(seed), "--out", str(runs / name),
+            "--max-minutes", str(minutes), "--episodes", "2000", "--checkpoint-every", "10"]  # fmt: skip
+
+
+def run_parallel(commands: list[list[str]]) -> list[float]:
+    """Run training commands side by side (one core each); wall seconds of each."""
+    start = time.perf_counter()
+    procs = [subprocess.Popen(cmd) for cmd in commands]
+    walls = []
+    for proc, cmd in zip(procs, commands, strict=True):
+        if proc.wait() != 0:
+            raise SystemExit(f"training failed: {shlex.join(cmd)}")
+        walls.append(time.perf_counter() - start)
+    return walls
+
+
+def pick(out: Path, env: EnvConfig, seed: int, episodes: int) -> tuple[Path, dict[str, float]]:
+    """Evaluate final and best; keep the one with the higher mean reward."""
+    scored = []
+    for name in ("final", "best"):
+        path = out / "checkpoints" / f"{name}.pt"
+        rows = evaluate(env, actor_policy(load_actor(path, env.obs_size)), episodes, seed)
+        scored.append((mean_rows(rows), path))
+    mean, path = max(scored, key=lambda item: item[0]["reward_sum"])
+    return path, mean
+
+
+def card_section(title: str, cmd: list[str], seed: int, wall: float, out: Path, chosen: Path, m: dict) -> str:
+    import pandas as pd
+
+    metrics = pd.read_csv(out / "metrics.csv")
+    lines = [
+        f"## {title}",
+        "",
+        f"- command: `{shlex.join(['behave', *cmd[3:]])}`",
+        f"- seed: {seed}; training episodes: {len(metrics)}; wall time: {wall / 60:.1f} min",
+        f"- shipped checkpoint: {chosen.stem} (of final / best-in-training, by evaluated reward)",
+        f"- evaluation ({m['episodes']:.0f} episodes, no exploration): "
+        f"{m['colliding_steps_pct']:.2f}% colliding steps, {m['off_tracks']:.2f} off-tracks and "
+        f"{m['collisions']:.2f} collisions per episode, "
+        f"mean speed {100 * m['mean_speed_frac']:.1f}% of the limit",
+    ]
+    for name in ("overtaker", "keeper"):
+        if f"{name}_speed_frac" in m:
+            lines.append(f"- {name}s' mean speed: {100 * m[f'{name}_speed_frac']:.1f}% of the limit")
+    if "passed_frac" in m:
+        lines.append(f"- slower cars passed: {100 * m['passed_frac']:.1f}% of (agent, slower car) pairs")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--runs", type=Path, default=Path("runs/pretrained"))
+    parser.add_argument("--minutes", default="8,12,20", help="budgets: lanekeeping,overtaking,multi")
+    parser.add_argument("--eval-episodes", type=int, default=5)
+    args = parser.parse_args()
+    lk_min, ot_min, multi_min = (float(x) for x in args.minutes.split(","))
+    s = args.seed
+    sections = []
+    results = {}
+
+    runs = args.runs
+    lk_cmd = train_command("lanekeeping", ["lanekeeping", "--agents", "6"], runs, s, lk_min)
+    [wall] = run_parallel([lk_cmd])
+    lk_env = EnvConfig(agents=6, max_steps=1000)
+    lk_chosen, m = pick(runs / "lanekeeping", lk_env, s, args.eval_episodes)
+    save_actor_only(lk_chosen, PRETRAINED / "lanekeeping.pt")
+    results["lanekeeping"] = m
+    sections.append(card_section("Lane keeping (lanekeeping.pt)", lk_cmd, s, wall, runs / "lanekeeping",
+                                 lk_chosen, {**m, "episodes": args.eval_episodes}))  # fmt: skip
+
+    ot_cmd = train_command("overtaking", ["overtaking", "--agents", "4", "--opponents", "4",
+                                          "--init", str(lk_chosen)], runs, s, ot_min)  # fmt: skip
+    mb_cmd = train_command("multi", ["multi", "--overtakers", "4", "--keepers", "4", "--placement", "C",
+                                     "--init", str(lk_chosen)], runs, s, multi_min)  # fmt: skip
+    walls = run_parallel([ot_cmd, mb_cmd])
+    setups = [
+        ("overtaking", "Overtaking (overtaking.pt)", ot_cmd,
+         EnvConfig(behaviour="overtaking", agents=4, opponents=4, max_steps=1000)),
+        ("multi", "Multi-behaviour 4+4, placement C (multi.pt)", mb_cmd,
+         EnvConfig(behaviour="multi", overtakers=4, keepers=4, placement="C", max_steps=1000)),
+    ]  # fmt: skip
+    for (name, title, cmd, env), wall in zip(setups, walls, strict=True):
+        chosen, m = pick(runs / name, env, s, args.eval_episodes)
+        save_actor_only(chosen, PRETRAINED / f"{name}.pt")
+        results[name] = m
+        sections.append(card_section(title, cmd, s, wall, runs / name, chosen,
+                                     {**m, "episodes": args.eval_episodes}))  # fmt: skip
+
+    header = (
+        "# Bundled policies: model card\n\n"
+        "Trained by this project with `make pretrained` (benchmarks/make_pretrained.py) on a 2-core CPU, "
+        "PS-DDPG with the defaults of `behave train` unless the command says otherwise. "
+        "Files hold actor weights only (`behave` never needs the critic to drive). "
+        "Scenario: the bundled 3 km, 3-lane ring; 1000 steps of 0.2 s per episode.\n\n"
+    )
+    atomic_write_text(PRETRAINED / "MODEL_CARD.md", header + "\n".join(sections))
+    atomic_write_text(args.runs / "evaluation.json", json.dumps(results, indent=2))
+
+
+if __name__ == "__main__":
+    main()

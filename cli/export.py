@@ -1,0 +1,37 @@
+"""`behave export` and `behave plot`: FCD traces for other simulators, and a picture of them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from behaviors.export import EXPORT_FORMATS, export_fcd, read_fcd
+from behaviors.plot import plot_fcd
+
+
+def export_command(
+    fcd: Annotated[
+        Path, typer.Argument(help="FCD file (.xml, .csv or .parquet) from behave populate or SUMO")
+    ],
+    to: Annotated[str, typer.Option("--to", help=f"target format: {', '.join(EXPORT_FORMATS)}")],
+    out: Annotated[Path, typer.Option(help="output file (ns2 also writes .config and .activity beside it)")],
+    net: Annotated[
+        Path | None, typer.Option(help="the network (needed for lon/lat formats: gpx, kml)")
+    ] = None,
+) -> None:
+    """Convert FCD with SUMO's traceExporter, fixing the outputs it writes malformed."""
+    for path in export_fcd(fcd, to, net=net, out=out):
+        typer.echo(f"wrote {path}")
+
+
+def plot_command(
+    fcd: Annotated[Path, typer.Argument(help="FCD file (.xml, .csv or .parquet)")],
+    out: Annotated[Path, typer.Option(help="PNG to write")],
+    geo: Annotated[bool, typer.Option(help="the FCD holds lon/lat")] = False,
+    title: Annotated[str, typer.Option(help="figure title")] = "",
+) -> None:
+    """Time-space diagram and lateral position over time, coloured by behaviour."""
+    plot_fcd(read_fcd(fcd, geo=geo), out, title=title or fcd.name)
+    typer.echo(f"wrote {out}")

@@ -1,0 +1,99 @@
+"""`behave train BEHAVIOUR`: PS-DDPG (or a baseline) on a SUMO scenario, into a run directory."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from behaviors.train import TrainConfig, prepare_run
+
+DEFAULTS = TrainConfig()
+
+
+def train(
+    behaviour: Annotated[str, typer.Argument(help="lanekeeping, overtaking or multi")],
+    algo: Annotated[
+        str, typer.Option(help="ps-ddpg (shared), ddpg (one agent) or multi-ddpg")
+    ] = DEFAULTS.algo,
+    agents: Annotated[int, typer.Option(help="learning agents (lanekeeping/overtaking)")] = DEFAULTS.agents,
+    overtakers: Annotated[int, typer.Option(help="overtakers (multi)")] = 0,
+    keepers: Annotated[int, typer.Option(help="lane keepers (multi)")] = 0,
+    placement: Annotated[
+        str, typer.Option(help="multi start: A overtakers ahead, B keepers ahead, C mixed")
+    ] = "C",
+    opponents: Annotated[int | None, typer.Option(help="slower passive cars ahead (overtaking)")] = None,
+    episodes: Annotated[
+        int, typer.Option(help="episodes to train (total, with --resume)")
+    ] = DEFAULTS.episodes,
+    max_steps: Annotated[int, typer.Option(help="steps per episode (time limit)")] = DEFAULTS.max_steps,
+    step_length: Annotated[float, typer.Option(help="seconds per step")] = DEFAULTS.step_length,
+    seed: Annotated[int, typer.Option(help="makes the run repeatable")] = DEFAULTS.seed,
+    scenario: Annotated[str, typer.Option(help="ring, highway or tiny")] = DEFAULTS.scenario,
+    out: Annotated[
+        Path | None, typer.Option(help="run directory (default runs/BEHAVIOUR-ALGO-sSEED)")
+    ] = None,
+    init: Annotated[Path | None, typer.Option(help="start from this checkpoint (curriculum)")] = None,
+    resume: Annotated[Path | None, typer.Option(help="continue the run in this directory")] = None,
+    updates_per_step: Annotated[
+        int | None, typer.Option(help="network updates per step (default: one per live agent)")
+    ] = None,
+    batched_updates: Annotated[bool, typer.Option(help="do a step's updates as one big batch")] = False,
+    hidden: Annotated[str, typer.Option(help="hidden layer sizes, e.g. 256,256")] = "256,256",
+    batch_size: Annotated[int, typer.Option(help="replay minibatch size")] = DEFAULTS.batch_size,
+    reward_scale: Annotated[
+        float, typer.Option(help="reward multiplier seen by the critic")
+    ] = DEFAULTS.reward_scale,
+    explore_decay_steps: Annotated[
+        int, typer.Option(help="env steps over which exploration noise decays to 0")
+    ] = DEFAULTS.explore_decay_steps,
+    checkpoint_every: Annotated[int, typer.Option(help="episodes between numbered checkpoints")] = 10,
+    max_minutes: Annotated[
+        float | None, typer.Option(help="wall-clock budget; stops after that episode")
+    ] = None,
+) -> None:
+    """Train a behaviour; Ctrl-C saves a checkpoint and the state to --resume from."""
+    config = TrainConfig(
+        behaviour=behaviour, algo=algo, agents=agents, overtakers=overtakers, keepers=keepers,
+        placement=placement, opponents=opponents, episodes=episodes, max_steps=max_steps,
+        step_length=step_length, seed=seed, scenario=scenario, init=str(init) if init else None,
+        updates_per_step=updates_per_step, batched_updates=batched_updates, hidden=parse_sizes(hidden),
+        batch_size=batch_size, reward_scale=reward_scale, explore_decay_steps=explore_decay_steps,
+        checkpoint_every=checkpoint_every, max_minutes=max_minutes,
+    )  # fmt: skip
+    run_dir = resume or out or Path("runs") / f"{behaviour}-{algo}-s{seed}"
+    trainer = prepare_run(config, run_dir, resume=resume is not None)
+    total = trainer.config.episodes
+    columns = (
+        TextColumn("episode"), MofNCompleteColumn(), BarColumn(), TextColumn("{task.fields[status]}"),
+        TimeElapsedColumn(),
+    )  # fmt: skip
+    with Progress(*columns, transient=False) as progress:
+        task = progress.add_task("train", total=total, completed=trainer.episode, status="starting SUMO")
+
+        def show(row: dict) -> None:
+            rate = row["agent_steps"] / max(row["wall_s"], 1e-9)
+            progress.update(
+                task,
+                advance=1,
+                status=(
+                    f"reward {row['reward_sum']:9.0f}  colliding {row['colliding_steps_pct']:5.1f}%  "
+                    f"speed {100 * row['mean_speed_frac']:3.0f}%  {rate:6.0f} agent-steps/s"
+                ),
+            )
+
+        trainer.run(show)
+    state = "interrupted; continue with --resume" if trainer.stop_requested else "done"
+    typer.echo(f"{state}: {trainer.episode} episodes in {run_dir}")
+
+
+def parse_sizes(text: str) -> tuple[int, ...]:
+    from behaviors.errors import BehaveError
+
+    try:
+        sizes = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        raise BehaveError(f"network sizes must be integers like 256,256, got '{text}'") from None
+    return sizes

@@ -1,0 +1,187 @@
+"""behave populate on real SUMO: bundled highway, a hand-built curved net with a ramp, FCD, bad input."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
+from behaviors.ddpg.networks import Actor
+from behaviors.errors import BehaveError
+from behaviors.export import read_fcd, validate_fcd_xml
+from behaviors.populate import DEFAULT_POLICY, PRETRAINED, PopulateConfig, populate
+from behaviors.sumo_home import sumo_binary
+
+
+def policy_file(tmp: Path, obs_dim: int, behaviour: str) -> Path:
+    path = tmp / f"{behaviour}.pt"
+    meta = {
+        "algorithm": "ps-ddpg", "behaviour": behaviour, "behaviours": [behaviour], "obs_dim": obs_dim,
+        "observation_layout": "test", "normalisation": "test", "hidden": [32, 32], "training_steps": 0,
+    }  # fmt: skip
+    save_checkpoint(path, actor_state=Actor(obs_dim, (32, 32)).state_dict(), meta=meta)
+    return path
+
+
+def curved_net(tmp: Path) -> Path:
+    """Four 3.0 m lanes on an arc of radius ~300 m, then a single-lane ramp and a two-lane exit."""
+    arc = " ".join(f"{300 * np.sin(a):.3f},{300 - 300 * np.cos(a):.3f}" for a in np.linspace(0, 1.2, 60))
+    (tmp / "c.nod.xml").write_text(
+        '<nodes><node id="a" x="0" y="0"/><node id="b" x="279.6" y="191.3"/>'
+        '<node id="c" x="420" y="420"/><node id="d" x="560" y="250"/></nodes>'
+    )
+    (tmp / "c.edg.xml").write_text(
+        f'<edges><edge id="arc" from="a" to="b" numLanes="4" width="3.0" speed="27" shape="{arc}"/>'
+        '<edge id="ramp" from="b" to="c" numLanes="1" speed="15"/>'
+        '<edge id="exit" from="b" to="d" numLanes="2" width="3.0" speed="27"/></edges>'
+    )
+    net = tmp / "c.net.xml"
+    subprocess.run(
+        [sumo_binary("netconvert"), "-n", str(tmp / "c.nod.xml"), "-e", str(tmp / "c.edg.xml"), "-o", str(net),
+         "--no-turnarounds"],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    return net
+
+
+@pytest.fixture(scope="module")
+def multi_policy(tmp_path_factory) -> Path:
+    if DEFAULT_POLICY.is_file():
+        return DEFAULT_POLICY
+    return policy_file(tmp_path_factory.mktemp("policy"), 66, "multi")
+
+
+def test_populate_the_bundled_highway_writes_valid_fcd_with_both_behaviours(tmp_path, multi_policy):
+    fcd = tmp_path / "out" / "fcd.xml"
+    summary = populate(PopulateConfig(policy=multi_policy, overtakers=3, keepers=3, background=10,
+                                      duration=30.0, fcd=fcd, seed=1))  # fmt: skip
+    validate_fcd_xml(fcd)
+    df = read_fcd(fcd)
+    types = set(df["type"])
+    assert {"behave_keeper", "behave_overtaker", "behave_background"} <= types
+    assert summary.vehicles >= 16 and summary.agent_steps > 0
+    assert summary.real_time_factor > 1
+    assert not [p for p in fcd.parent.iterdir() if p.name.startswith(".")]  # no temp files left
+
+
+def test_the_same_seed_gives_byte_identical_fcd(tmp_path, multi_policy):
+    runs = []
+    for name in ("a", "b"):
+        fcd = tmp_path / name / "fcd.xml"
+        populate(PopulateConfig(policy=multi_policy, overtakers=2, keepers=2, background=8, duration=20.0,
+                                fcd=fcd, seed=5))  # fmt: skip
+        runs.append(fcd.read_bytes())
+    assert runs[0] == runs[1]
+    other = tmp_path / "c" / "fcd.xml"
+    populate(PopulateConfig(policy=multi_policy, overtakers=2, keepers=2, background=8, duration=20.0,
+                            fcd=other, seed=6))  # fmt: skip
+    assert other.read_bytes() != runs[0]
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_fcd_in_csv_and_parquet(tmp_path, multi_policy, suffix):
+    fcd = tmp_path / f"fcd{suffix}"
+    populate(
+        PopulateConfig(policy=multi_policy, overtakers=1, keepers=1, background=4, duration=10.0, fcd=fcd)
+    )
+    df = read_fcd(fcd)
+    assert {"behave_keeper", "behave_overtaker"} <= set(df["type"])
+
+
+def test_agents_on_a_curved_four_lane_net_never_take_the_single_lane_ramp(tmp_path, multi_policy):
+    net = curved_net(tmp_path)
+    fcd = tmp_path / "fcd.xml"
+    summary = populate(PopulateConfig(net=net, policy=multi_policy, overtakers=3, keepers=3, background=6,
+                                      duration=40.0, fcd=fcd, keep_count=True, seed=2))  # fmt: skip
+    validate_fcd_xml(fcd)
+    df = read_fcd(fcd)
+    agents = df[df["type"].isin(["behave_keeper", "behave_overtaker"])]
+    assert len(agents) > 0
+    assert not agents["lane"].str.startswith("ramp").any()
+    assert agents["lane"].str.startswith("arc").any()
+    assert summary.vehicles >= 12
+
+
+def test_keep_count_reinserts_agents_that_leave(tmp_path, multi_policy):
+    base = {"policy": multi_policy, "overtakers": 2, "keepers": 2, "background": 0, "duration": 150.0}
+    kept = populate(PopulateConfig(**base, fcd=tmp_path / "k.xml", keep_count=True))
+    dropped = populate(PopulateConfig(**base, fcd=tmp_path / "d.xml", keep_count=False))
+    steps = round(150.0 / 0.2)
+    assert kept.vehicles > 4  # the 3 km highway is left after ~100 s: replacements came in
+    assert kept.agent_steps > dropped.agent_steps
+    assert kept.agent_steps >= 0.9 * 4 * steps
+
+
+def test_a_lanekeeping_policy_drives_keepers_only(tmp_path):
+    lanekeeping = policy_file(tmp_path, 65, "lanekeeping")
+    fcd = tmp_path / "fcd.xml"
+    populate(PopulateConfig(policy=lanekeeping, overtakers=0, keepers=2, background=2, duration=5.0, fcd=fcd))
+    assert set(read_fcd(fcd)["type"]) == {"behave_keeper", "behave_background"}
+    with pytest.raises(BehaveError, match="lanekeeping policy: use --keepers"):
+        populate(PopulateConfig(policy=lanekeeping, overtakers=2, keepers=0, duration=5.0, fcd=fcd))
+
+
+def single_lane_net(tmp: Path) -> Path:
+    (tmp / "s.nod.xml").write_text('<nodes><node id="a" x="0" y="0"/><node id="b" x="300" y="0"/></nodes>')
+    (tmp / "s.edg.xml").write_text('<edges><edge id="e" from="a" to="b" numLanes="1"/></edges>')
+    net = tmp / "s.net.xml"
+    subprocess.run([sumo_binary("netconvert"), "-n", str(tmp / "s.nod.xml"), "-e", str(tmp / "s.edg.xml"),
+                    "-o", str(net)], check=True, capture_output=True)  # fmt: skip
+    return net
+
+
+def bad_inputs(tmp: Path, policy: Path) -> list[tuple[dict, str]]:
+    malformed = tmp / "bad.net.xml"
+    malformed.write_text("<net><edge")
+    corrupt = tmp / "corrupt.pt"
+    corrupt.write_bytes(b"not a checkpoint")
+    file_in_the_way = tmp / "file"
+    file_in_the_way.write_text("x")
+    return [
+        ({"net": tmp / "missing.net.xml"}, "network file not found"),
+        ({"net": malformed}, "cannot read network"),
+        ({"net": single_lane_net(tmp)}, "no multi-lane edge"),
+        ({"overtakers": 400, "keepers": 400}, "do not fit"),
+        ({"overtakers": 0, "keepers": 0, "background": 0}, "nothing to simulate"),
+        ({"overtakers": -1}, ">= 0"),
+        ({"policy": corrupt}, "not a behave checkpoint"),
+        ({"policy": tmp / "nope.pt"}, "checkpoint not found"),
+        ({"policy": policy_file(tmp, 65, "overtaking"), "keepers": 2, "overtakers": 0}, "overtaking policy"),
+        ({"fcd": file_in_the_way / "fcd.xml"}, "cannot create output directory"),
+        ({"fcd": tmp / "fcd.txt"}, "must end in"),
+    ]
+
+
+def test_bad_input_gives_a_clear_error_and_no_output(tmp_path, multi_policy):
+    for overrides, message in bad_inputs(tmp_path, multi_policy):
+        fcd = overrides.pop("fcd", tmp_path / "out" / "fcd.xml")
+        config = PopulateConfig(**{"policy": multi_policy, "duration": 5.0, "fcd": fcd, **overrides})
+        with pytest.raises(BehaveError, match=message):
+            populate(config)
+        assert not fcd.exists()
+        out = tmp_path / "out"
+        assert not out.exists() or not list(out.iterdir())
+
+
+def test_cli_errors_are_one_line_on_stderr_without_traceback(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "cli", "populate", "--net", str(tmp_path / "missing.net.xml"),
+         "--fcd", str(tmp_path / "f.xml")],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        f"behave: error: network file not found: {tmp_path}/missing.net.xml"
+    ]
+    assert not (tmp_path / "f.xml").exists()
+
+
+def test_bundled_policies_load_and_match_their_behaviours():
+    for name, obs_dim in (("lanekeeping", 65), ("overtaking", 65), ("multi", 66)):
+        meta = load_checkpoint(PRETRAINED / f"{name}.pt").meta
+        assert meta["obs_dim"] == obs_dim and meta["behaviour"] == name
+    assert (PRETRAINED / "MODEL_CARD.md").read_text().count("## ") == 3
