@@ -19,7 +19,13 @@ from behaviors.actuation import CarModel
 from behaviors.control import Fleet
 from behaviors.errors import BehaveError
 from behaviors.geometry import RoadGeometry, load_geometry
-from behaviors.rewards import NO_PROGRESS_SECONDS, RewardTerms, race_positions, step_rewards
+from behaviors.rewards import (
+    NO_PROGRESS_SECONDS,
+    NO_PROGRESS_SPEED,
+    RewardTerms,
+    race_positions,
+    step_rewards,
+)
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT
 from behaviors.sim import SimOptions, SumoSim
 from behaviors.timing import PhaseTimer
@@ -49,6 +55,7 @@ class EnvConfig:
     step_length: float = 0.2
     spacing: float = 30.0  # metres between consecutive cars in the same lane at the start
     seed: int | None = None
+    sumo_drives: bool = False  # reference baseline: SUMO's Krauss + SL2015 drive the "agents"
     car: CarModel = field(default_factory=CarModel)
 
     def validate(self) -> None:
@@ -100,6 +107,21 @@ class EnvConfig:
         mixed = np.zeros(self.n_agents)
         mixed[interleaved(self.overtakers, self.keepers)] = 1.0
         return mixed
+
+
+def formation(n_opponents: int, n_agents: int, lanes: int, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Start places, front to back: metres behind the front car and lane offsets.
+
+    Passive cars go ahead, two spacings apart and one lane over each time, so
+    they never form a rolling wall across all lanes (overtaking stays possible);
+    agents follow one spacing behind them, staggered: each next car a lane over
+    and spacing/lanes further back (so cars in the same lane are `spacing` apart).
+    """
+    opponents = np.arange(n_opponents) * 2 * spacing
+    start = opponents[-1] + 2 * spacing if n_opponents else 0.0
+    agents = start + np.arange(n_agents) * spacing / lanes
+    lanes_used = np.concatenate([np.arange(n_opponents), np.arange(n_agents)])
+    return np.concatenate([opponents, agents]), lanes_used
 
 
 def interleaved(first: int, second: int) -> np.ndarray:
@@ -217,7 +239,7 @@ class BehaveEnv(ParallelEnv):
         sim, fleet = self.sim, self.fleet
         slots = self.live_slots
         last_obs = self.live_obs
-        actuation = fleet.act(sim, actions)
+        actuation = None if self.config.sumo_drives else fleet.act(sim, actions)
         with self.timer.phase("sumo"):
             sim.step()
         self.steps += 1
@@ -231,11 +253,17 @@ class BehaveEnv(ParallelEnv):
         if present.any():
             next_obs[present] = fleet.sense(sim, vehicles, self.config.behaviour == "multi")
         self._update_progress(vehicles)
+        if actuation is None:
+            speed, angle, off_track = (
+                self._follow_sumo(present),
+                np.zeros(len(slots)),
+                np.zeros(len(slots), bool),
+            )
+        else:
+            speed, angle, off_track = actuation.speed, actuation.angle, actuation.off_track & present
         collided = np.array([vid in contact for vid in self.agents], bool)
-        off_track = actuation.off_track & present
         no_progress = (self._slow_time(present) >= NO_PROGRESS_SECONDS) & present
         race = race_positions(self.progress)[slots]
-        speed, angle = actuation.speed, actuation.angle
         terms = step_rewards(
             speed,
             angle,
@@ -289,7 +317,10 @@ class BehaveEnv(ParallelEnv):
             )
 
     def _formation_length(self, cars: int, lanes: int) -> float:
-        return cars * self.config.spacing / lanes + 2 * self.config.spacing
+        behind, _ = formation(
+            self.config.n_opponents, cars - self.config.n_opponents, lanes, self.config.spacing
+        )
+        return float(behind.max(initial=0.0)) + 2 * self.config.spacing
 
     def _populate(self) -> None:
         """Insert passive cars ahead and the agents behind them in a staggered formation."""
@@ -297,8 +328,8 @@ class BehaveEnv(ParallelEnv):
         assert sim is not None
         lanes = min(self.geometry.edges[e].lanes for e in self.lap)
         lap_length = sum(self.geometry.edges[e].length for e in self.lap)
-        step = cfg.spacing / lanes
         cars = cfg.n_opponents + cfg.n_agents
+        behind, lane_of = formation(cfg.n_opponents, cfg.n_agents, lanes, cfg.spacing)
         if self.scenario.looping:
             front = float(self._rng.uniform(0, lap_length))
         else:
@@ -309,7 +340,7 @@ class BehaveEnv(ParallelEnv):
         self.start_progress = np.zeros(cars)
         vids, types = [], []
         for k in range(cars):  # formation order: front (opponents) to back
-            at = front - (k * step + (cfg.spacing if k >= cfg.n_opponents and cfg.n_opponents else 0))
+            at = front - behind[k]
             is_agent = k >= cfg.n_opponents
             slot = k - cfg.n_opponents
             vid = names[slot] if is_agent else f"passive_{k}"
@@ -317,12 +348,14 @@ class BehaveEnv(ParallelEnv):
                 (OVERTAKER_TYPE if self.slot_behaviour[slot] else KEEPER_TYPE) if is_agent else PASSIVE_TYPE
             )
             edge_index, pos = self._locate(at % lap_length if self.scenario.looping else at)
-            sim.add_vehicle(vid, routes[edge_index], vtype, lane=(first_lane + k) % lanes, pos=pos, speed=0.0)
+            lane = int(first_lane + lane_of[k]) % lanes
+            sim.add_vehicle(vid, routes[edge_index], vtype, lane=lane, pos=pos, speed=0.0)
             self.start_progress[k] = at
             vids.append(vid)
             types.append(is_agent)
         agent_ids = [v for v, a in zip(vids, types, strict=True) if a]
-        sim.take_control(agent_ids)
+        if not cfg.sumo_drives:
+            sim.take_control(agent_ids)
         sim.step()
         missing = set(vids) - set(sim.vehicle_ids())
         if missing:
@@ -365,6 +398,15 @@ class BehaveEnv(ParallelEnv):
             row = vehicles.row.get(vid)
             if row is not None:
                 self.progress[k] = self.start_progress[k] + vehicles.distance[row]
+
+    def _follow_sumo(self, present: np.ndarray) -> np.ndarray:
+        """Baseline: take the speeds SUMO chose (heading stays along the lane)."""
+        fleet = self.fleet
+        fleet.speed = self.sim.read_speeds(fleet.ids)
+        fleet.slow_time = np.where(fleet.speed < NO_PROGRESS_SPEED, fleet.slow_time + fleet.dt, 0.0)
+        speed = np.zeros(len(present))
+        speed[present] = fleet.speed
+        return speed
 
     def _slow_time(self, present: np.ndarray) -> np.ndarray:
         out = np.zeros(len(present))
