@@ -1,0 +1,79 @@
+"""`behave evaluate`: the paper's metrics for one or more policies across agent counts or placements."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from behaviors.errors import BehaveError
+from behaviors.evaluate import PAPER_METRICS, plan_evaluation, run_plan, write_report
+
+
+def evaluate_command(
+    checkpoints: Annotated[list[Path] | None, typer.Argument(help="policy checkpoints to compare")] = None,
+    agents: Annotated[str, typer.Option(help="agent counts to test, e.g. 3,5,7,10")] = "3,5,7,10,12,15,20",
+    episodes: Annotated[int, typer.Option(help="episodes averaged per setting")] = 20,
+    behaviour: Annotated[str | None, typer.Option(help="default: the checkpoint's own")] = None,
+    overtakers: Annotated[int, typer.Option(help="overtakers (multi)")] = 0,
+    keepers: Annotated[int, typer.Option(help="lane keepers (multi)")] = 0,
+    placement: Annotated[str | None, typer.Option(help="multi cases, e.g. A,B,C")] = None,
+    scenario: Annotated[str, typer.Option(help="ring, highway or tiny")] = "ring",
+    max_steps: Annotated[int, typer.Option(help="steps per episode")] = 1000,
+    seed: Annotated[int, typer.Option(help="makes the evaluation repeatable")] = 0,
+    baseline: Annotated[
+        str | None, typer.Option(help="'sumo': SUMO's own drivers as a reference row")
+    ] = None,
+    out: Annotated[Path, typer.Option(help="directory for results.csv, results.md, metrics.png")] = Path(
+        "runs/evaluate"
+    ),
+) -> None:
+    """Average the paper's metrics over episodes for every policy and setting."""
+    plan = plan_evaluation(
+        list(checkpoints or []), agents=parse_ints(agents), episodes=episodes, behaviour=behaviour,
+        overtakers=overtakers, keepers=keepers, placements=parse_list(placement), scenario=scenario,
+        seed=seed, max_steps=max_steps, baseline=baseline,
+    )  # fmt: skip
+    console = Console()
+    results = run_plan(plan, on_setting=lambda p, s: console.print(f"evaluating {p}: {s}", style="dim"))
+    table = Table(title=f"behave evaluate ({episodes} episodes per setting)")
+    columns = ["policy", "setting", *(m for m, _ in PAPER_METRICS), "off_tracks", "mean_speed_frac"]
+    columns += [
+        c for c in ("overtakes_per_agent", "overtaker_speed_frac", "keeper_speed_frac") if c in results
+    ]
+    for column in columns:
+        table.add_column(
+            column.replace("_", " "), justify="left" if column in ("policy", "setting") else "right"
+        )
+    for _, row in results.iterrows():
+        table.add_row(*(row[c] if isinstance(row[c], str) else f"{row[c]:,.2f}" for c in columns))
+    console.print(table)
+    for path in write_report(results, out):
+        typer.echo(f"wrote {path}")
+
+
+SHORT = {
+    "reward_per_agent": "reward/agent",
+    "progress_per_agent": "progress/agent",
+    "colliding_steps_per_agent": "coll. steps/agent",
+    "colliding_steps_pct": "% coll. steps",
+    "off_tracks": "off-tracks",
+    "mean_speed_frac": "speed/limit",
+    "overtakes_per_agent": "overtakes/agent",
+    "overtaker_speed_frac": "overtaker speed",
+    "keeper_speed_frac": "keeper speed",
+}
+
+
+def parse_ints(text: str) -> list[int]:
+    try:
+        return [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise BehaveError(f"--agents must be a comma-separated list of integers, got '{text}'") from None
+
+
+def parse_list(text: str | None) -> list[str] | None:
+    return [part.strip() for part in text.split(",") if part.strip()] if text else None
