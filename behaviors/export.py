@@ -31,11 +31,13 @@ if TYPE_CHECKING:
 FCD_SUFFIXES = (".xml", ".csv", ".parquet")
 # SUMO 1.28 names; `lon`/`lat` are rejected (geo output reuses x/y), and an unknown name is
 # only logged as an error while SUMO carries on with exit code 0.
+# `distance` is SUMO's linear referencing (kilometrage of the edges, else the position on the
+# edge); `odometer` is the distance driven since insertion.
 FCD_ATTRIBUTES = ("x", "y", "angle", "type", "speed", "pos", "lane", "posLat")
-FCD_ATTRIBUTES += ("acceleration", "distance")
+FCD_ATTRIBUTES += ("acceleration", "distance", "odometer")
 TEXT_COLUMNS = ("id", "type", "lane")
 COLUMNS = ("time", "id", "x", "y", "angle", "type", "speed", "pos", "lane", "posLat")
-COLUMNS += ("acceleration", "distance")
+COLUMNS += ("acceleration", "distance", "odometer")
 EXPORT_FORMATS = ("ns2", "omnet", "gpx", "kml", "ipg")
 GEO_FORMATS = ("gpx", "kml")
 OMNET_BOGUS_LINE = re.compile(r"^<xmlns:xsi=[^\n]*>\n", re.MULTILINE)

@@ -49,10 +49,11 @@ class EdgeInfo:
 class RoadGeometry:
     """Borders (segments + culling grid) and lane axes of a network's normal edges."""
 
-    seg_a: np.ndarray  # [M, 2] segment start points
-    seg_b: np.ndarray  # [M, 2] segment end points
+    seg_a: np.ndarray  # [M, 2] segment start points (column-major)
+    seg_b: np.ndarray  # [M, 2] segment end points (column-major)
     cell_keys: np.ndarray  # [C] sorted grid-cell keys that have candidates
-    cell_candidates: np.ndarray  # [C, K] segment ids near each cell, -1 padded
+    cell_start: np.ndarray  # [C + 1] cell i's candidates are cell_segments[cell_start[i]:cell_start[i + 1]]
+    cell_segments: np.ndarray  # [total] segment ids near each cell, cell after cell
     lane_index: dict[str, int]  # lane id -> row in the lane tables
     lane_edge: list[str]  # lane row -> edge id
     lane_number: np.ndarray  # [L] index of the lane within its edge (0 = rightmost)
@@ -76,14 +77,17 @@ class RoadGeometry:
         angle = self.axis_angle[i] + t * (self.axis_angle[i + 1] - self.axis_angle[i])
         return angle, self.axis_curvature[i]
 
-    def candidates(self, points: np.ndarray) -> np.ndarray:
-        """[N, K] ids of border segments that may lie within RAY_RANGE of each point (-1 = none)."""
+    def candidates(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(point row, segment id) pairs: the border segments that may lie within RAY_RANGE of each point.
+
+        Flat pairs rather than a padded table: cells on curves list hundreds of
+        segments, cells on straights a handful, and padding would cost them all the same.
+        """
         keys = cell_key(points)
-        row = np.searchsorted(self.cell_keys, keys)
-        row = np.clip(row, 0, len(self.cell_keys) - 1)
-        found = self.cell_keys[row] == keys
-        out = self.cell_candidates[row]
-        return np.where(found[:, None], out, -1)
+        row = np.minimum(np.searchsorted(self.cell_keys, keys), len(self.cell_keys) - 1)
+        start = self.cell_start[row]
+        count = np.where(self.cell_keys[row] == keys, self.cell_start[row + 1] - start, 0)
+        return np.repeat(np.arange(len(points)), count), self.cell_segments[ranges(start, count)]
 
 
 def cell_key(points: np.ndarray) -> np.ndarray:
@@ -190,12 +194,13 @@ def build_geometry(
     b = np.concatenate(seg_b)
     keep = np.linalg.norm(b - a, axis=1) > 1e-6
     a, b = a[keep], b[keep]
-    keys, table = candidate_table(a, b)
+    keys, start, segments = candidate_table(a, b)
     return RoadGeometry(
-        seg_a=a,
-        seg_b=b,
+        seg_a=np.asfortranarray(a),  # column-major: seg_a[:, 0] etc. are contiguous, fast to gather from
+        seg_b=np.asfortranarray(b),
         cell_keys=keys,
-        cell_candidates=table,
+        cell_start=start,
+        cell_segments=segments,
         lane_index=lane_index,
         lane_edge=lane_edge,
         lane_number=np.asarray(numbers, np.int64),
@@ -234,12 +239,13 @@ def offset_polyline(points: np.ndarray, offset: float) -> np.ndarray:
     return points + normals * (offset / np.maximum(cos_half, 0.2))[:, None]
 
 
-def candidate_table(seg_a: np.ndarray, seg_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def candidate_table(seg_a: np.ndarray, seg_b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For every grid cell near a border, the border segments within reach of a ray from it.
 
     A segment qualifies for a cell when its distance to the cell's centre is at most
     RAY_RANGE plus the cell's half diagonal, so every segment a 200 m ray from
-    anywhere in the cell can touch is listed.
+    anywhere in the cell can touch is listed. Returns the sorted cell keys and the
+    lists in CSR form (offsets [C + 1], flat segment ids).
     """
     reach = RAY_RANGE + GRID_CELL * np.sqrt(0.5)
     centres = cells_near(seg_a, seg_b, reach)
@@ -248,14 +254,10 @@ def candidate_table(seg_a: np.ndarray, seg_b: np.ndarray) -> tuple[np.ndarray, n
         chunk = centres[start : start + 256]
         dist = point_segment_distance(chunk[:, None, :], seg_a[None], seg_b[None])
         lists.extend(np.flatnonzero(row) for row in dist <= reach)
-    used = [i for i, ids in enumerate(lists) if len(ids)]
-    width = max(len(lists[i]) for i in used)
-    table = np.full((len(used), width), -1, np.int64)
-    for row, i in enumerate(used):
-        table[row, : len(lists[i])] = lists[i]
-    keys = cell_key(centres[used])
-    order = np.argsort(keys)
-    return keys[order], table[order]
+    keys = cell_key(centres)
+    order = [i for i in np.argsort(keys) if len(lists[i])]
+    start = np.concatenate([[0], np.cumsum([len(lists[i]) for i in order])]).astype(np.int64)
+    return keys[order], start, np.concatenate([lists[i] for i in order]).astype(np.int64)
 
 
 def cells_near(seg_a: np.ndarray, seg_b: np.ndarray, reach: float) -> np.ndarray:
@@ -271,6 +273,15 @@ def cells_near(seg_a: np.ndarray, seg_b: np.ndarray, reach: float) -> np.ndarray
     base = np.unique(np.floor(samples / GRID_CELL).astype(np.int64), axis=0)
     cells = np.unique((base[:, None, :] + offsets[None]).reshape(-1, 2), axis=0)
     return (cells + 0.5) * GRID_CELL
+
+
+def ranges(start: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Concatenation of arange(start[i], start[i] + count[i]) over i, vectorised."""
+    total = int(count.sum())
+    if total == 0:
+        return np.zeros(0, np.int64)
+    ends = np.cumsum(count)
+    return np.arange(total) + np.repeat(start - (ends - count), count)
 
 
 def point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -24,38 +24,94 @@ BEHAVIOURS = {  # vType id -> (legend label, colour)
 }
 SUMO_CAR = ("SUMO car", "tab:gray")
 SUMO_LANE_WIDTH = 3.2  # SUMO's default; FCD does not record lane widths
+# Longitudinal column -> axis label. FCD `distance` is SUMO's linear referencing: a road
+# position only on nets whose edges carry kilometrage (else the position on the current edge).
+ALONG_LABELS = {
+    "distance": "road position [m]",
+    "odometer": "distance driven since insertion [m]",
+    "pos": "position on lane [m]",
+}
+DISTANCE_NOISE = 0.1  # metres a road position may step back (2-decimal rounding) and stay monotone
+AGENT_STYLE = {"linewidth": 1.4, "alpha": 0.95, "zorder": 3}
+SUMO_CAR_STYLE = {"linewidth": 0.8, "alpha": 0.45, "zorder": 2}
 
 
-def plot_fcd(df: pd.DataFrame, out: Path, *, title: str = "", lane_width: float = SUMO_LANE_WIDTH) -> None:
-    """Time-space diagram and lateral position over time, one line per vehicle, as PNG."""
+def plot_fcd(
+    df: pd.DataFrame,
+    out: Path,
+    *,
+    title: str = "",
+    lane_width: float = SUMO_LANE_WIDTH,
+    net: Path | None = None,
+) -> None:
+    """Time-space diagram and lateral position over time, one line per vehicle, as PNG.
+
+    The time-space axis is the road position (FCD `distance`) when it grows along every trace,
+    else the distance driven since insertion (`odometer`). Lateral positions are in lanes:
+    posLat is divided by each lane's width read from `net`, or by `lane_width` for lanes it
+    does not name (or without a net).
+    """
     missing = {"time", "id", "type", "lane", "posLat"} - set(df.columns)
     if missing:
         raise BehaveError(f"FCD table lacks columns for plotting: {', '.join(sorted(missing))}")
+    widths = _lane_widths(Path(net)) if net is not None else {}
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    figure = Figure(figsize=(10, 7), layout="constrained")
+    figure = Figure(figsize=(11, 8), layout="constrained")
     FigureCanvasAgg(figure)
     space, lateral = figure.subplots(2, 1, sharex=True, height_ratios=(3, 2))
-    has_distance = "distance" in df.columns and df["distance"].notna().any()
-    along = "distance" if has_distance else "pos"
-    for _, trace in df.sort_values("time").groupby("id", sort=False):
+    df = df.sort_values(["id", "time"], kind="stable")
+    along = _along_column(df)
+    for _, trace in df.groupby("id", sort=False):
         label, colour = BEHAVIOURS.get(str(trace["type"].iloc[0]), SUMO_CAR)
-        style = {"color": colour, "label": label, "linewidth": 1.2}
+        style = {"color": colour, "label": label}
+        style.update(AGENT_STYLE if colour != SUMO_CAR[1] else SUMO_CAR_STYLE)
         space.plot(trace["time"], trace[along], **style)
-        lateral.plot(trace["time"], _lateral_lanes(trace, lane_width), **style)
+        lateral.plot(trace["time"], _lateral_lanes(trace, widths, lane_width), **style)
     _decorate(space, lateral, along, title)
     _save_png(figure, Path(out))
 
 
-def _lateral_lanes(trace: pd.DataFrame, lane_width: float) -> pd.Series:
-    """Lateral position in lanes: index of the lane (its id ends in _<index>) + posLat."""
+def _along_column(df: pd.DataFrame) -> str:
+    """`distance` if it is a road position (never falls along a trace), else `odometer`."""
+    present = [c for c in ALONG_LABELS if c in df.columns and df[c].notna().any()]
+    if not present:
+        raise BehaveError("FCD table has no distance, odometer or pos column to plot")
+    if present[0] == "distance" and len(present) > 1:
+        steps = df.groupby("id", sort=False)["distance"].diff()  # df is sorted by id, time
+        if steps.min(skipna=True) < -DISTANCE_NOISE:
+            return present[1]
+    return present[0]
+
+
+def _lane_widths(net: Path) -> dict[str, float]:
+    """Lane id -> width of every lane in a SUMO net, internal (junction) lanes included."""
+    import xml.sax
+
+    import sumolib
+
+    if not net.is_file():
+        raise BehaveError(f"net file not found: {net}")
+    try:
+        road = sumolib.net.readNet(str(net), withInternal=True)
+    except (xml.sax.SAXException, ValueError, KeyError) as err:
+        raise BehaveError(f"{net} is not a SUMO net ({err})") from None
+    widths = {lane.getID(): lane.getWidth() for edge in road.getEdges() for lane in edge.getLanes()}
+    if not widths:
+        raise BehaveError(f"{net} is not a SUMO net (no lanes)")
+    return widths
+
+
+def _lateral_lanes(trace: pd.DataFrame, widths: dict[str, float], lane_width: float) -> pd.Series:
+    """Lateral position in lanes: index of the lane (its id ends in _<index>) + posLat / width."""
     index = trace["lane"].str.rsplit("_", n=1).str[-1].astype("float64")
-    return index + trace["posLat"] / lane_width
+    width = trace["lane"].map(widths).astype("float64").fillna(lane_width)
+    return index + trace["posLat"] / width
 
 
 def _decorate(space: Axes, lateral: Axes, along: str, title: str) -> None:
-    space.set_ylabel("distance travelled [m]" if along == "distance" else "position on lane [m]")
+    space.set_ylabel(ALONG_LABELS[along])
     space.set_title(title or "FCD trace")
     lateral.set_ylabel("lateral position [lanes]")
     lateral.set_xlabel("time [s]")

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from behaviors.geometry import RAY_RANGE, RoadGeometry
+from behaviors.geometry import RAY_RANGE, RoadGeometry, ranges
 
 TRACK_RAY_ANGLES = np.deg2rad(np.arange(-90.0, 91.0, 10.0))
 """19 track-edge rays relative to the car's heading; positive = to the left."""
@@ -93,8 +93,8 @@ def engine_rpm(speed: np.ndarray) -> np.ndarray:
     """Engine speed from a simple six-gear model: the lowest gear that stays under the shift point."""
     wheel_rpm = speed / WHEEL_RADIUS * 60.0 / (2 * np.pi)
     rpm = wheel_rpm[:, None] * GEAR_RATIOS[None, :] * FINAL_DRIVE
-    gear = np.minimum(np.argmax(rpm <= SHIFT_UP_RPM, axis=1), len(GEAR_RATIOS) - 1)
-    gear = np.where(rpm[:, -1] > SHIFT_UP_RPM, len(GEAR_RATIOS) - 1, gear)
+    # ratios fall with the gear, so the gears over the shift point are exactly the lowest ones
+    gear = np.minimum(np.count_nonzero(rpm > SHIFT_UP_RPM, axis=1), len(GEAR_RATIOS) - 1)
     return np.maximum(rpm[np.arange(len(speed)), gear], IDLE_RPM)
 
 
@@ -108,54 +108,50 @@ def track_rays(origin: np.ndarray, heading: np.ndarray, geometry: RoadGeometry) 
 
     Instead of testing every ray against every segment, each nearby segment is
     turned into the interval of bearings it covers; only rays inside that
-    interval are intersected with it (usually one or none).
+    interval are intersected with it (usually one or none). Work happens in each
+    car's own frame (x forward, y left), where the ray directions are constants
+    and the rays only span the front half-plane, so segments behind are dropped
+    before any trigonometry.
     """
     n = len(origin)
     out = np.full(n * len(TRACK_RAY_ANGLES), RAY_RANGE)
-    cand = geometry.candidates(origin)
-    agent, col = np.nonzero(cand >= 0)
-    seg = cand[agent, col]
-    a = geometry.seg_a[seg] - origin[agent]
-    b = geometry.seg_b[seg] - origin[agent]
-    ta = wrap_angle(np.arctan2(a[:, 1], a[:, 0]) - heading[agent])
-    tb = wrap_angle(np.arctan2(b[:, 1], b[:, 0]) - heading[agent])
-    lo, hi = np.minimum(ta, tb), np.maximum(ta, tb)
-    wraps = hi - lo > np.pi  # the segment lies across the car's back: covers [hi, pi) and [-pi, lo]
+    agent, seg = geometry.candidates(origin)
+    ax, ay, bx, by = _in_car_frame(geometry, origin, heading, agent, seg)
+    front = np.flatnonzero((ax > 0) | (bx > 0))
+    agent, ax, ay, bx, by = agent[front], ax[front], ay[front], bx[front], by[front]
+    cross = ax * by - ay * bx  # a x b: its sign tells on which side the segment crosses x = 0
+    # a segment half behind the car reaches round to the +-90 degree ray on the side it crosses
+    ta = np.where(ax < 0, np.copysign(np.pi, -cross), np.arctan2(ay, ax))
+    tb = np.where(bx < 0, np.copysign(np.pi, cross), np.arctan2(by, bx))
     step = TRACK_RAY_ANGLES[1] - TRACK_RAY_ANGLES[0]
-    first = TRACK_RAY_ANGLES[0]
-    last_ray = len(TRACK_RAY_ANGLES) - 1
-    # ray ranges [j0, j1] and [j2, j3] (inclusive) covered by each segment
-    j0 = np.where(wraps, np.ceil((hi - first) / step), np.ceil((lo - first) / step))
-    j1 = np.where(wraps, last_ray, np.floor((hi - first) / step))
-    j2 = np.where(wraps, 0, 1)
-    j3 = np.where(wraps, np.floor((lo - first) / step), 0)
-    j0, j1 = np.maximum(j0, 0).astype(np.int64), np.minimum(j1, last_ray).astype(np.int64)
-    j2, j3 = np.maximum(j2, 0).astype(np.int64), np.minimum(j3, last_ray).astype(np.int64)
-    c1 = np.maximum(j1 - j0 + 1, 0)
-    c2 = np.maximum(j3 - j2 + 1, 0)
-    pair = np.concatenate([np.repeat(np.arange(len(seg)), c1), np.repeat(np.arange(len(seg)), c2)])
-    ray = np.concatenate([_ranges(j0, c1), _ranges(j2, c2)])
-    if len(pair) == 0:
-        return out.reshape(n, -1)
-    direction = heading[agent[pair]] + TRACK_RAY_ANGLES[ray]
-    ux, uy = np.cos(direction), np.sin(direction)
-    pa, pb = a[pair], b[pair]
-    ex, ey = pb[:, 0] - pa[:, 0], pb[:, 1] - pa[:, 1]
-    denom = ux * ey - uy * ex
+    first = np.ceil((np.minimum(ta, tb) - TRACK_RAY_ANGLES[0]) / step)
+    last = np.floor((np.maximum(ta, tb) - TRACK_RAY_ANGLES[0]) / step)
+    first = np.maximum(first, 0).astype(np.int64)
+    count = np.maximum(np.minimum(last, len(TRACK_RAY_ANGLES) - 1).astype(np.int64) - first + 1, 0)
+    pair = np.repeat(np.arange(len(agent)), count)
+    ray = ranges(first, count)
+    # ray t * u meets the segment's line a + s (b - a) where t = (a x b) / (u x (b - a))
+    denom = _RAY_COS[ray] * (by - ay)[pair] - _RAY_SIN[ray] * (bx - ax)[pair]
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = (pa[:, 0] * ey - pa[:, 1] * ex) / denom
-    hit = np.isfinite(t) & (t >= 0) & (t < RAY_RANGE)
-    np.minimum.at(out, agent[pair][hit] * len(TRACK_RAY_ANGLES) + ray[hit], t[hit])
+        t = cross[pair] / denom
+    hit = (t >= 0) & (t < RAY_RANGE)
+    np.minimum.at(out, agent[pair[hit]] * len(TRACK_RAY_ANGLES) + ray[hit], t[hit])
     return out.reshape(n, -1)
 
 
-def _ranges(start: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """Concatenation of arange(start[i], start[i] + count[i]) over i, vectorised."""
-    total = int(count.sum())
-    if total == 0:
-        return np.zeros(0, np.int64)
-    offsets = np.arange(total) - np.repeat(np.cumsum(count) - count, count)
-    return np.repeat(start, count) + offsets
+_RAY_COS = np.cos(TRACK_RAY_ANGLES)
+_RAY_SIN = np.sin(TRACK_RAY_ANGLES)
+
+
+def _in_car_frame(
+    geometry: RoadGeometry, origin: np.ndarray, heading: np.ndarray, agent: np.ndarray, seg: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Segment end points (a_x, a_y, b_x, b_y) of each (agent, segment) pair in the agent's frame."""
+    cos, sin = np.cos(heading)[agent], np.sin(heading)[agent]
+    ox, oy = origin[:, 0][agent], origin[:, 1][agent]
+    dax, day = geometry.seg_a[:, 0][seg] - ox, geometry.seg_a[:, 1][seg] - oy
+    dbx, dby = geometry.seg_b[:, 0][seg] - ox, geometry.seg_b[:, 1][seg] - oy
+    return dax * cos + day * sin, day * cos - dax * sin, dbx * cos + dby * sin, dby * cos - dbx * sin
 
 
 def opponent_rays(
@@ -167,37 +163,103 @@ def opponent_rays(
     heading (sector 0 starts straight behind; 18 starts straight ahead, to the left).
     """
     n = len(origin)
+    q, _, dx, dy, square = _neighbours(origin, others, RAY_RANGE, self_rows)
+    cell = q * OPPONENT_SECTORS + _sector(np.arctan2(dy, dx) - heading[q], heading)
+    # nearest by squared distance; the exact hypot only for each sector's winner (hypot is slow)
+    nearest = np.full(n * OPPONENT_SECTORS, np.inf)
+    np.minimum.at(nearest, cell, square)
+    win = np.flatnonzero(square == nearest[cell])
     out = np.full(n * OPPONENT_SECTORS, RAY_RANGE)
-    q, m = neighbour_pairs(origin, others, RAY_RANGE)
-    keep = m != self_rows[q]
-    q, m = q[keep], m[keep]
-    d = others[m] - origin[q]
-    dist = np.hypot(d[:, 0], d[:, 1])
-    bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - heading[q])
-    sector = np.minimum(((bearing + np.pi) / SECTOR_WIDTH).astype(np.int64), OPPONENT_SECTORS - 1)
-    np.minimum.at(out, q * OPPONENT_SECTORS + sector, dist)
+    out[cell[win]] = np.hypot(dx[win], dy[win])
     return out.reshape(n, -1)
 
 
+def _sector(bearing: np.ndarray, heading: np.ndarray) -> np.ndarray:
+    """Sector of each relative bearing, bit for bit `int((wrap_angle(bearing) + pi) / SECTOR_WIDTH)`.
+
+    The float modulo is slow; while |heading| < 6, bearing + pi lies in [-2 pi, 4 pi),
+    where adding or subtracting 2 pi once gives exactly what `% (2 pi)` gives.
+    """
+    x = bearing + np.pi
+    if np.all(np.abs(heading) < 6.0):
+        below, above = x < 0, x >= 2 * np.pi
+        np.add(x, 2 * np.pi, out=x, where=below)
+        np.subtract(x, 2 * np.pi, out=x, where=above)
+    else:
+        x %= 2 * np.pi
+    return np.minimum((((x - np.pi) + np.pi) / SECTOR_WIDTH).astype(np.int64), OPPONENT_SECTORS - 1)
+
+
+DENSE_PAIRS = 200_000
+"""Below this many (query, point) combinations all distances are computed at once, without a grid."""
+
+MAX_GRID_CELLS = 1 << 16
+"""Cap on the neighbour grid's cells: on a huge map the cells grow instead (only slower, still exact)."""
+
+Neighbours = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""(query rows, point rows, x offsets, y offsets, squared distances); offsets are point - query."""
+
+
 def neighbour_pairs(query: np.ndarray, points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """All (query row, point row) pairs closer than `radius`, via a grid of radius-sized cells."""
-    if len(points) == 0 or len(query) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    cell_p = np.floor(points / radius).astype(np.int64)
-    key_p = cell_p[:, 0] * (1 << 32) + cell_p[:, 1]
-    order = np.argsort(key_p, kind="stable")
-    sorted_keys = key_p[order]
-    cell_q = np.floor(query / radius).astype(np.int64)
-    qs, ms = [], []
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            key = (cell_q[:, 0] + dx) * (1 << 32) + cell_q[:, 1] + dy
-            start = np.searchsorted(sorted_keys, key, side="left")
-            count = np.searchsorted(sorted_keys, key, side="right") - start
-            qs.append(np.repeat(np.arange(len(query)), count))
-            ms.append(order[_ranges(start, count)])
-    q = np.concatenate(qs)
-    m = np.concatenate(ms)
-    d = points[m] - query[q]
-    close = d[:, 0] ** 2 + d[:, 1] ** 2 < radius**2
-    return q[close], m[close]
+    """All (query row, point row) pairs closer than `radius`, sorted by query row."""
+    q, m, _, _, _ = _neighbours(query, points, radius)
+    return q, m
+
+
+def _neighbours(
+    query: np.ndarray, points: np.ndarray, radius: float, exclude: np.ndarray | None = None
+) -> Neighbours:
+    """Pairs closer than `radius`, without (i, exclude[i]); brute force when small, else a grid."""
+    if len(query) == 0 or len(points) == 0:
+        empty = np.zeros(0)
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), empty, empty, empty
+    if len(query) * len(points) <= DENSE_PAIRS:
+        dx = points[:, 0][None, :] - query[:, 0][:, None]
+        dy = points[:, 1][None, :] - query[:, 1][:, None]
+        square = dx * dx + dy * dy
+        close = square < radius**2
+        if exclude is not None:
+            close[np.arange(len(query)), exclude] = False
+        q, m = np.nonzero(close)
+        return q, m, dx[q, m], dy[q, m], square[q, m]
+    per_query, m = _grid_candidates(query, points, radius)
+    dx = points[:, 0][m] - np.repeat(query[:, 0], per_query)
+    dy = points[:, 1][m] - np.repeat(query[:, 1], per_query)
+    square = dx * dx + dy * dy
+    close = square < radius**2
+    if exclude is not None:
+        close &= m != np.repeat(exclude, per_query)
+    keep = np.flatnonzero(close)
+    q = np.repeat(np.arange(len(query)), per_query)[keep]
+    return q, m[keep], dx[keep], dy[keep], square[keep]
+
+
+def _grid_candidates(query: np.ndarray, points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points in the same or adjacent cells of a grid with cells >= `radius`: count per query, rows.
+
+    Dense (a count per cell over the bounding box) so a lookup is plain indexing,
+    not a binary search; a margin of one cell keeps every neighbour index inside.
+    """
+    both = (points, query)
+    low = np.array([min(a[:, 0].min() for a in both), min(a[:, 1].min() for a in both)])
+    span = np.array([max(a[:, 0].max() for a in both), max(a[:, 1].max() for a in both)]) - low
+    # a hair over `radius`, so float rounding of cell indices cannot hide a pair just inside it
+    size = max(radius * (1 + 1e-9), float(np.sqrt(span[0] * span[1] / MAX_GRID_CELLS)))
+    low = low - size
+    rows = int(span[1] // size) + 3
+    cells = (int(span[0] // size) + 3) * rows
+    cell_p = _flat_cell(points, low, size, rows)
+    start = np.concatenate([[0], np.cumsum(np.bincount(cell_p, minlength=cells))])
+    around = (_flat_cell(query, low, size, rows)[:, None] + (_OFFSETS[:, 0] * rows + _OFFSETS[:, 1])).ravel()
+    count = start[around + 1] - start[around]
+    per_query = count.reshape(len(query), -1).sum(axis=1)
+    return per_query, np.argsort(cell_p, kind="stable")[ranges(start[around], count)]
+
+
+_OFFSETS = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(-1, 2)
+
+
+def _flat_cell(points: np.ndarray, low: np.ndarray, size: float, rows: int) -> np.ndarray:
+    """Row-major index of each point's grid cell (points lie above `low`: truncation is floor)."""
+    cell = ((points - low) / size).astype(np.int64)
+    return cell[:, 0] * rows + cell[:, 1]

@@ -32,7 +32,7 @@ from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.ddpg.learner import DDPGConfig, DDPGLearner, IndependentLearners
 from behaviors.env import BEHAVIOURS, BehaveEnv, EnvConfig
 from behaviors.errors import BehaveError
-from behaviors.files import atomic_write_bytes, atomic_write_text, ensure_writable_dir
+from behaviors.files import atomic_path, atomic_write_bytes, atomic_write_text, ensure_writable_dir
 from behaviors.metrics import EpisodeStats, summary
 from behaviors.sensors import OBSERVATION_LAYOUT
 
@@ -234,8 +234,8 @@ class Trainer:
             "learner": self.learner.state_dict(),
             "config": self.config.to_json(),
         }
-        buffer = _torch_bytes(payload)
-        atomic_write_bytes(self.out / "state.pt", buffer)
+        with atomic_path(self.out / "state.pt") as tmp:
+            torch.save(payload, tmp)
 
     def load_state(self) -> None:
         path = self.out / "state.pt"
@@ -355,14 +355,6 @@ def episode_seed(seed: int, episode: int) -> int:
     return int(np.random.SeedSequence([seed, episode]).generate_state(1)[0] % (2**31 - 1))
 
 
-def _torch_bytes(payload: dict[str, Any]) -> bytes:
-    import io
-
-    buffer = io.BytesIO()
-    torch.save(payload, buffer)
-    return buffer.getvalue()
-
-
 @contextmanager
 def _stop_on_signals(trainer: Trainer) -> Iterator[None]:
     """SIGINT/SIGTERM ask the loop to stop at the next step; a second Ctrl-C is not swallowed."""
@@ -432,14 +424,17 @@ def plot_curve(path: Path, rows: list[dict[str, Any]]) -> None:
     atomic_write_bytes(path, buffer.getvalue())
 
 
-def prepare_run(config: TrainConfig, out: Path, *, resume: bool) -> Trainer:
-    """Create (or reopen with --resume) a run directory and its trainer."""
+def prepare_run(config: TrainConfig, out: Path, *, resume: bool, episodes: int | None = None) -> Trainer:
+    """Create (or reopen with --resume) a run directory and its trainer.
+
+    On resume the stored config is used; `episodes` (if given) sets the new total.
+    """
     if resume:
         saved = out / "config.json"
         if not saved.is_file():
             raise BehaveError(f"nothing to resume in {out}: no config.json")
         stored = TrainConfig.from_json(saved.read_text())
-        config = dataclasses.replace(stored, episodes=max(config.episodes, stored.episodes))
+        config = dataclasses.replace(stored, episodes=episodes or stored.episodes, max_minutes=None)
     else:
         if (out / "state.pt").exists():
             raise BehaveError(f"{out} already holds a run: use --resume or another --out")

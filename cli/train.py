@@ -57,14 +57,14 @@ def train(
     """Train a behaviour; Ctrl-C saves a checkpoint and the state to --resume from."""
     config = TrainConfig(
         behaviour=behaviour, algo=algo, agents=agents, overtakers=overtakers, keepers=keepers,
-        placement=placement, opponents=opponents, episodes=episodes, max_steps=max_steps,
+        placement=placement, opponents=opponents, episodes=episodes or DEFAULTS.episodes, max_steps=max_steps,
         step_length=step_length, seed=seed, scenario=scenario, init=str(init) if init else None,
         updates_per_step=updates_per_step, batched_updates=batched_updates, hidden=parse_sizes(hidden),
         batch_size=batch_size, reward_scale=reward_scale, explore_decay_steps=explore_decay_steps,
         checkpoint_every=checkpoint_every, max_minutes=max_minutes,
     )  # fmt: skip
     run_dir = resume or out or Path("runs") / f"{behaviour}-{algo}-s{seed}"
-    trainer = prepare_run(config, run_dir, resume=resume is not None)
+    trainer = prepare_run(config, run_dir, resume=resume is not None, episodes=episodes)
     total = trainer.config.episodes
     columns = (
         TextColumn("episode"), MofNCompleteColumn(), BarColumn(), TextColumn("{task.fields[status]}"),

@@ -41,8 +41,8 @@ def curved_net(tmp: Path) -> Path:
     )
     net = tmp / "c.net.xml"
     subprocess.run(
-        [sumo_binary("netconvert"), "-n", str(tmp / "c.nod.xml"), "-e", str(tmp / "c.edg.xml"), "-o", str(net),
-         "--no-turnarounds"],
+        [sumo_binary("netconvert"), "-n", str(tmp / "c.nod.xml"), "-e", str(tmp / "c.edg.xml"),
+         "-o", str(net), "--no-turnarounds"],
         check=True, capture_output=True,
     )  # fmt: skip
     return net

@@ -13,6 +13,7 @@ from behaviors.sensors import (
     TRACK_RAY_ANGLES,
     AgentFrame,
     engine_rpm,
+    neighbour_pairs,
     observe,
     opponent_rays,
     track_rays,
@@ -151,3 +152,82 @@ def test_engine_rpm_stays_in_the_gear_model_band():
     rpm = engine_rpm(speeds)
     assert rpm.min() >= 800.0 and rpm.max() <= 10000.0
     assert rpm[-1] > rpm[50]  # top gear: rpm grows with speed
+
+
+def brute_force_track_rays(origin: np.ndarray, heading: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray):
+    """Every ray against every segment, no culling: the reference for the optimised sensor."""
+    out = np.full((len(origin), len(TRACK_RAY_ANGLES)), RAY_RANGE)
+    e = seg_b - seg_a
+    for i, (p, h) in enumerate(zip(origin, heading, strict=True)):
+        u = np.stack([np.cos(h + TRACK_RAY_ANGLES), np.sin(h + TRACK_RAY_ANGLES)], axis=1)[:, None, :]
+        w = seg_a - p  # ray p + t u meets segment a + s e where both cross products agree
+        denom = u[..., 0] * e[:, 1] - u[..., 1] * e[:, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (w[:, 0] * e[:, 1] - w[:, 1] * e[:, 0]) / denom
+            s = (w[:, 0] * u[..., 1] - w[:, 1] * u[..., 0]) / denom
+        hit = (t >= 0) & (t < RAY_RANGE) & (s >= 0) & (s <= 1)
+        out[i] = np.where(hit, t, RAY_RANGE).min(axis=1)
+    return out
+
+
+def random_ring_poses(geometry, rng: np.random.Generator, count: int):
+    """Poses on the ring's carriageway (heading near the road's) and anywhere around it (any heading)."""
+    import sumolib
+
+    net = sumolib.net.readNet(str(get_scenario("ring").net))
+    shapes = [np.asarray(lane.getShape()) for edge in net.getEdges() for lane in edge.getLanes()]
+    origins, headings = [], []
+    for shape in (shapes[k] for k in rng.integers(len(shapes), size=count)):
+        i = rng.integers(len(shape) - 1)
+        d = shape[i + 1] - shape[i]
+        normal = np.array([-d[1], d[0]]) / np.hypot(*d)
+        origins.append(shape[i] + rng.uniform() * d + rng.uniform(-1.5, 1.5) * normal)
+        headings.append(np.arctan2(d[1], d[0]) + rng.normal(0.0, 0.4))
+    low, high = geometry.seg_a.min(axis=0) - 50, geometry.seg_a.max(axis=0) + 50
+    anywhere = rng.uniform(low, high, size=(count // 4, 2))
+    return np.concatenate([origins, anywhere]), np.concatenate([headings, rng.uniform(-9, 9, count // 4)])
+
+
+def test_track_rays_match_brute_force_on_the_ring():
+    geometry = load_geometry(get_scenario("ring").net)
+    origin, heading = random_ring_poses(geometry, np.random.default_rng(3), 400)
+    expected = brute_force_track_rays(origin, heading, geometry.seg_a, geometry.seg_b)
+    assert (expected < RAY_RANGE).mean() > 0.5  # the poses do see borders
+    np.testing.assert_allclose(track_rays(origin, heading, geometry), expected, atol=0.02)
+
+
+def brute_force_opponent_rays(origin, heading, others, self_rows):
+    """Per agent, per vehicle: the sector formula written out plainly."""
+    out = np.full((len(origin), 36), RAY_RANGE)
+    for i in range(len(origin)):
+        for j in range(len(others)):
+            d = others[j] - origin[i]
+            dist = np.hypot(d[0], d[1])
+            if j == self_rows[i] or not dist < RAY_RANGE:
+                continue
+            bearing = (np.arctan2(d[1], d[0]) - heading[i] + np.pi) % (2 * np.pi) - np.pi
+            sector = min(int((bearing + np.pi) / (2 * np.pi / 36)), 35)
+            out[i, sector] = min(out[i, sector], dist)
+    return out
+
+
+@pytest.mark.parametrize("agents", [5, 500])  # brute force over all pairs, and the neighbour grid
+def test_opponent_rays_are_exactly_the_brute_force_ones(agents):
+    rng = np.random.default_rng(agents)
+    others = rng.uniform([0, 0], [3000, 600], size=(agents + 40, 2))
+    rows = rng.permutation(len(others))[:agents]
+    heading = rng.uniform(-7, 7, agents)
+    heading[:2] = [8.0, -20.0]  # far outside [-pi, pi): unwrapped road angles can be
+    expected = brute_force_opponent_rays(others[rows], heading, others, rows)
+    np.testing.assert_array_equal(opponent_rays(others[rows], heading, others, rows), expected)
+
+
+def test_neighbour_pairs_are_the_same_with_and_without_the_grid():
+    rng = np.random.default_rng(7)
+    points = rng.uniform(-5000, 5000, size=(800, 2))
+    query = rng.uniform(-5000, 5000, size=(400, 2))
+    q, m = neighbour_pairs(query, points, 300.0)  # 320k combinations: the grid
+    d = np.linalg.norm(points[None] - query[:, None], axis=2)
+    eq, em = np.nonzero(d < 300.0)
+    assert len(q) == len(eq)
+    assert set(zip(q.tolist(), m.tolist(), strict=True)) == set(zip(eq.tolist(), em.tolist(), strict=True))

@@ -6,9 +6,7 @@ with torch.load(weights_only=True) so opening a downloaded policy cannot execute
 
 from __future__ import annotations
 
-import contextlib
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,6 +15,7 @@ import torch
 
 from behaviors.ddpg.networks import ACTION_HIGH, ACTION_LOW, ACTION_NAMES, Actor
 from behaviors.errors import BehaveError
+from behaviors.files import atomic_path
 
 FORMAT_VERSION = 1
 ALGORITHMS = ("ps-ddpg", "ddpg", "multi-ddpg")
@@ -61,24 +60,9 @@ def checkpoint_meta(meta: dict[str, Any]) -> dict[str, Any]:
 
 
 def _atomic_torch_save(payload: dict[str, Any], path: Path) -> None:
-    """Temp file in the target directory, fsync, os.replace: readers see old or new, never half."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(payload, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    with contextlib.suppress(OSError):  # make the rename itself durable where supported
-        dir_fd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dir_fd)
-        finally:
-            os.close(dir_fd)
+    """Readers see the old file or the new one, never half of one."""
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
 
 
 def save_checkpoint(

@@ -1,0 +1,94 @@
+"""Evaluation: metrics against a hand-made episode log, the report on real SUMO, bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from behaviors.ddpg.checkpoint import save_checkpoint
+from behaviors.ddpg.networks import Actor
+from behaviors.env import StepBatch
+from behaviors.errors import BehaveError
+from behaviors.evaluate import PAPER_METRICS, plan_evaluation
+from behaviors.metrics import EpisodeStats, summary
+from behaviors.rewards import RewardTerms
+from cli.main import app
+
+
+def step(slots, collided, speed=20.0, reward=10.0, off_track=None) -> StepBatch:
+    n = len(slots)
+    zeros = np.zeros(n)
+    terms = RewardTerms(np.full(n, reward), zeros, zeros, zeros, zeros)
+    off = np.zeros(n, bool) if off_track is None else np.asarray(off_track)
+    collided = np.asarray(collided)
+    no = np.zeros(n, bool)
+    obs = np.zeros((n, 65))
+    return StepBatch(np.asarray(slots), obs, terms.total, terms, collided | off, no, collided, off, no,
+                     np.full(n, speed))  # fmt: skip
+
+
+def test_metrics_follow_the_paper_on_a_hand_made_episode():
+    stats = EpisodeStats(3, np.array([1.0, 0.0, 0.0]))
+    stats.record(np.array([0, 1, 2]), step([0, 1, 2], [False, False, False]))
+    stats.record(np.array([0, 1, 2]), step([0, 1, 2], [True, True, False]))  # two agents, ONE colliding step
+    stats.record(np.array([2]), step([2], [False], speed=10.0))
+    stats.record(np.array([2]), step([2], [False], off_track=[True]))
+    row = summary(stats, speed_limit=20.0)
+    assert row["colliding_steps_pct"] == pytest.approx(25.0)  # 1 of 4 steps
+    assert row["colliding_steps_per_agent"] == pytest.approx(2 / 3)
+    assert row["collisions"] == 2 and row["off_tracks"] == 1
+    assert row["reward_sum"] == pytest.approx(80.0)  # 8 agent-steps of 10
+    assert row["reward_per_agent"] == pytest.approx(80.0 / 3)
+    assert row["mean_speed_frac"] == pytest.approx((7 * 20 + 10) / 8 / 20)
+    assert row["overtaker_speed_frac"] == pytest.approx(1.0)
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("ckpt") / "lk.pt"
+    meta = {"algorithm": "ps-ddpg", "behaviour": "lanekeeping", "behaviours": ["lanekeeping"],
+            "obs_dim": 65, "observation_layout": "t", "normalisation": "t", "hidden": [16, 16],
+            "training_steps": 0}  # fmt: skip
+    save_checkpoint(path, actor_state=Actor(65, (16, 16)).state_dict(), meta=meta)
+    return path
+
+
+def test_evaluate_writes_table_csv_markdown_and_png(tmp_path, checkpoint):
+    out = tmp_path / "report"
+    result = CliRunner().invoke(app, [
+        "evaluate", str(checkpoint), "--agents", "1,2", "--episodes", "2", "--scenario", "tiny",
+        "--max-steps", "15", "--baseline", "sumo", "--out", str(out),
+    ])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "reward" in result.output and "lk" in result.output  # the terminal table
+    table = pd.read_csv(out / "results.csv")
+    assert list(table["setting"]) == ["1 agents", "2 agents"] * 2
+    assert set(table["policy"]) == {"lk", "sumo (Krauss + SL2015)"}
+    assert {m for m, _ in PAPER_METRICS} <= set(table.columns)
+    assert (table["steps"] <= 15).all()
+    markdown = (out / "results.md").read_text()
+    assert markdown.startswith("| policy | setting | reward_per_agent") and markdown.count("\n") == 6
+    assert (out / "metrics.png").stat().st_size > 5000
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"checkpoints": [Path("/nope.pt")]}, "checkpoint not found"),
+        ({"agents": []}, "agent list is empty"),
+        ({"placements": ["A"]}, "--placement applies to multi-behaviour"),
+        ({"behaviour": "multi"}, "takes 65 observations but multi gives 66"),
+        ({"baseline": "idm"}, "unknown baseline"),
+        ({"agents": [0]}, "at least one agent"),
+    ],
+)
+def test_bad_input_is_refused_before_anything_runs(checkpoint, kwargs, message):
+    options = {"checkpoints": [checkpoint], "agents": [2], "episodes": 1, "behaviour": None, "overtakers": 0,
+               "keepers": 0, "placements": None, "scenario": "tiny", "seed": 0, "max_steps": 10,
+               "baseline": None, **kwargs}  # fmt: skip
+    with pytest.raises(BehaveError, match=message):
+        plan_evaluation(**options)
