@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml constraints.txt
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/behave populate --seed $(SEED) --out runs/populate
+	$(BIN)/behave populate --seed $(SEED) --keep-count --fcd runs/populate/fcd.xml --plot runs/populate/traces.png
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
