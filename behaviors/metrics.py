@@ -6,7 +6,7 @@ colliding steps per agent counts every colliding agent.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -16,7 +16,10 @@ from behaviors.env import BehaveEnv, StepBatch
 
 @dataclass
 class EpisodeStats:
-    """Counters of one evaluation episode (all agents), reduced by `summary`."""
+    """Counters of one episode (all agents), reduced by `summary`.
+
+    Agents leave at their first collision, so colliding steps per agent equal collisions per agent.
+    """
 
     n_agents: int
     behaviour_id: np.ndarray
@@ -26,22 +29,22 @@ class EpisodeStats:
     collisions: int = 0
     off_tracks: int = 0
     no_progress: int = 0
-    speed_sum: np.ndarray | None = None
-    speed_steps: np.ndarray | None = None
-    reward: np.ndarray | None = None
-    progress: np.ndarray | None = None
+    speed_sum: np.ndarray = field(init=False)  # per agent slot, like the arrays below
+    speed_steps: np.ndarray = field(init=False)
+    reward: np.ndarray = field(init=False)
+    progress: np.ndarray = field(init=False)
+    collided: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
-        self.speed_sum = np.zeros(self.n_agents)
-        self.speed_steps = np.zeros(self.n_agents)
-        self.reward = np.zeros(self.n_agents)
-        self.progress = np.zeros(self.n_agents)
+        for name in ("speed_sum", "speed_steps", "reward", "progress", "collided"):
+            setattr(self, name, np.zeros(self.n_agents))
 
     def record(self, slots: np.ndarray, batch: StepBatch) -> None:
         self.steps += 1
         self.colliding_steps += int(batch.collided.any())
         self.agent_colliding_steps += int(batch.collided.sum())
         self.collisions += int(batch.collided.sum())
+        np.add.at(self.collided, slots, batch.collided)
         self.off_tracks += int(batch.off_track.sum())
         self.no_progress += int(batch.no_progress.sum())
         np.add.at(self.reward, slots, batch.reward)
@@ -71,6 +74,9 @@ def summary(stats: EpisodeStats, speed_limit: float, passed: float | None = None
             row[f"{name}_speed_frac"] = float(
                 stats.speed_sum[mask].sum() / max(stats.speed_steps[mask].sum(), 1) / speed_limit
             )
+            row[f"{name}_reward_per_agent"] = float(stats.reward[mask].mean())
+            row[f"{name}_progress_per_agent"] = float(stats.progress[mask].mean())
+            row[f"{name}_collisions_per_agent"] = float(stats.collided[mask].mean())
     if passed is not None:
         row["passed_frac"] = passed
     return row

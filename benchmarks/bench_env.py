@@ -108,7 +108,8 @@ def cases_for(agent_counts: list[int]) -> list[Case]:
             continue
         cases.append(Case("ring", bundled_ring, n))
         if n == 6:
-            cases.append(Case("ring + 50 SUMO cars", bundled_ring, n, "overtaking", 50))
+            # 50 passive cars 60 m apart (the overtaking formation) need more than the 3 km ring
+            cases.append(Case("big ring + 50 SUMO cars", big_ring, n, "overtaking", 50))
     return cases
 
 
