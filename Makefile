@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 
-.PHONY: setup run test lint bench learn-check pretrained clean
+.PHONY: setup run test lint bench learn-check pretrained paper clean
 
 setup: $(STAMP)
 
@@ -36,6 +36,9 @@ learn-check: $(STAMP)
 
 pretrained: $(STAMP)
 	$(BIN)/python benchmarks/make_pretrained.py --seed $(SEED)
+
+paper: $(STAMP)
+	$(BIN)/python benchmarks/paper.py --seed $(SEED)
 
 clean:
 	rm -rf $(VENV) runs build *.egg-info
