@@ -36,6 +36,9 @@ PLACEMENTS = ("A", "B", "C")
 KEEPER_TYPE = "behave_keeper"
 OVERTAKER_TYPE = "behave_overtaker"
 PASSIVE_TYPE = "behave_passive"
+PASSIVE_SPEED = 20.0
+"""m/s: maxSpeed of the behave_passive vType (the slower cars to overtake)."""
+START_SPEED_FRACTION = 0.7
 ROUTE_SECONDS = 3600.0
 """Looping routes are unrolled for at least this much driving at 50 m/s."""
 
@@ -54,6 +57,7 @@ class EnvConfig:
     max_steps: int = 1000
     step_length: float = 0.2
     spacing: float = 30.0  # metres between consecutive cars in the same lane at the start
+    start_speed: float | None = None  # m/s for every car at the start; None: drawn per episode
     seed: int | None = None
     sumo_drives: bool = False  # reference baseline: SUMO's Krauss + SL2015 drive the "agents"
     car: CarModel = field(default_factory=CarModel)
@@ -76,6 +80,8 @@ class EnvConfig:
             raise BehaveError(f"max_steps must be positive, got {self.max_steps}")
         if not 0.01 <= self.step_length <= 1.0:
             raise BehaveError(f"step length must be in [0.01, 1] s, got {self.step_length}")
+        if self.start_speed is not None and self.start_speed < 0:
+            raise BehaveError(f"start speed must be >= 0, got {self.start_speed}")
         if (self.opponents or 0) < 0:
             raise BehaveError(f"opponents must be >= 0, got {self.opponents}")
 
@@ -335,6 +341,7 @@ class BehaveEnv(ParallelEnv):
         else:
             front = self._formation_length(cars, lanes)
         first_lane = int(self._rng.integers(lanes))
+        speed = self._start_speed()
         names = self.possible_agents
         routes = self._routes()
         self.start_progress = np.zeros(cars)
@@ -349,7 +356,8 @@ class BehaveEnv(ParallelEnv):
             )
             edge_index, pos = self._locate(at % lap_length if self.scenario.looping else at)
             lane = int(first_lane + lane_of[k]) % lanes
-            sim.add_vehicle(vid, routes[edge_index], vtype, lane=lane, pos=pos, speed=0.0)
+            v0 = speed if is_agent else min(speed, PASSIVE_SPEED)
+            sim.add_vehicle(vid, routes[edge_index], vtype, lane=lane, pos=pos, speed=v0)
             self.start_progress[k] = at
             vids.append(vid)
             types.append(is_agent)
@@ -363,10 +371,18 @@ class BehaveEnv(ParallelEnv):
         self.car_ids = vids
         self.agents = list(agent_ids)
         self.fleet = Fleet(self.geometry, cfg.car, cfg.step_length, self.timer)
-        self.fleet.add(agent_ids, np.zeros(len(agent_ids)), self.slot_behaviour)
+        self.fleet.add(agent_ids, np.full(len(agent_ids), speed), self.slot_behaviour)
         self.progress = self.start_progress.copy()
         self._agent_car_index = np.arange(cfg.n_opponents, cars)
         self._car_row = {vid: k for k, vid in enumerate(vids)}
+
+    def _start_speed(self) -> float:
+        """The configured start speed, or one drawn in [0, 0.7 x limit] so that policies learn to
+        take over at any speed (populate inserts agents at traffic speed)."""
+        if self.config.start_speed is not None:
+            return self.config.start_speed
+        limit = min(self.geometry.edges[e].speed for e in self.lap)
+        return float(self._rng.uniform(0.0, START_SPEED_FRACTION * limit))
 
     def _routes(self) -> list[str]:
         """One route per start edge: the lap rotated to start there, unrolled for looping scenarios."""
@@ -464,6 +480,7 @@ def make_env(
     seed: int | None = None,
     max_steps: int = 1000,
     step_length: float = 0.2,
+    start_speed: float | None = None,
 ) -> BehaveEnv:
     """A native PettingZoo ParallelEnv with a batched array interface for trainers."""
     return BehaveEnv(
@@ -478,5 +495,6 @@ def make_env(
             seed=seed,
             max_steps=max_steps,
             step_length=step_length,
+            start_speed=start_speed,
         )
     )

@@ -43,14 +43,27 @@ def run_parallel(commands: list[list[str]]) -> list[float]:
     return walls
 
 
+def recorded_walls(run_dirs: list[Path]) -> list[float]:
+    """Training seconds of finished runs, from their metrics (for --pick-only)."""
+    import pandas as pd
+
+    return [float(pd.read_csv(run / "metrics.csv")["wall_s"].sum()) for run in run_dirs]
+
+
 def pick(out: Path, env: EnvConfig, seed: int, episodes: int) -> tuple[Path, dict[str, float]]:
-    """Evaluate final and best; keep the one with the higher mean reward."""
+    """Evaluate every saved checkpoint of a run; ship the safest, then the most rewarded.
+
+    Safest = fewest collisions, off-tracks and no-progress ends per episode: a policy that
+    populates other people's networks should first of all not crash.
+    """
     scored = []
-    for name in ("final", "best"):
-        path = out / "checkpoints" / f"{name}.pt"
-        rows = evaluate(env, actor_policy(load_actor(path, env.obs_size)), episodes, seed)
-        scored.append((mean_rows(rows), path))
-    mean, path = max(scored, key=lambda item: item[0]["reward_sum"])
+    for path in sorted((out / "checkpoints").glob("*.pt")):
+        if path.stem in ("last", "interrupted", "episode_00000"):
+            continue  # last = final or a numbered one; episode 0 is the untrained start
+        mean = mean_rows(evaluate(env, actor_policy(load_actor(path, env.obs_size)), episodes, seed))
+        failures = mean["collisions"] + mean["off_tracks"] + mean["no_progress"]
+        scored.append(((failures, -mean["reward_sum"]), mean, path))
+    _, mean, path = min(scored, key=lambda item: item[0])
     return path, mean
 
 
@@ -63,7 +76,7 @@ def card_section(title: str, cmd: list[str], seed: int, wall: float, out: Path, 
         "",
         f"- command: `{shlex.join(['behave', *cmd[3:]])}`",
         f"- seed: {seed}; training episodes: {len(metrics)}; wall time: {wall / 60:.1f} min",
-        f"- shipped checkpoint: {chosen.stem} (of final / best-in-training, by evaluated reward)",
+        f"- shipped checkpoint: {chosen.stem} (of all saved checkpoints: fewest failures, then most reward)",
         f"- evaluation ({m['episodes']:.0f} episodes, no exploration): "
         f"{m['colliding_steps_pct']:.2f}% colliding steps, {m['off_tracks']:.2f} off-tracks and "
         f"{m['collisions']:.2f} collisions per episode, "
@@ -83,6 +96,7 @@ def main() -> None:
     parser.add_argument("--runs", type=Path, default=Path("runs/pretrained"))
     parser.add_argument("--minutes", default="8,12,20", help="budgets: lanekeeping,overtaking,multi")
     parser.add_argument("--eval-episodes", type=int, default=5)
+    parser.add_argument("--pick-only", action="store_true", help="re-evaluate existing runs, no training")
     args = parser.parse_args()
     lk_min, ot_min, multi_min = (float(x) for x in args.minutes.split(","))
     s = args.seed
@@ -91,7 +105,7 @@ def main() -> None:
 
     runs = args.runs
     lk_cmd = train_command("lanekeeping", ["lanekeeping", "--agents", "6"], runs, s, lk_min)
-    [wall] = run_parallel([lk_cmd])
+    [wall] = recorded_walls([runs / "lanekeeping"]) if args.pick_only else run_parallel([lk_cmd])
     lk_env = EnvConfig(agents=6, max_steps=1000)
     lk_chosen, m = pick(runs / "lanekeeping", lk_env, s, args.eval_episodes)
     save_actor_only(lk_chosen, PRETRAINED / "lanekeeping.pt")
@@ -103,7 +117,11 @@ def main() -> None:
                                           "--init", str(lk_chosen)], runs, s, ot_min)  # fmt: skip
     mb_cmd = train_command("multi", ["multi", "--overtakers", "4", "--keepers", "4", "--placement", "C",
                                      "--init", str(lk_chosen)], runs, s, multi_min)  # fmt: skip
-    walls = run_parallel([ot_cmd, mb_cmd])
+    walls = (
+        recorded_walls([runs / "overtaking", runs / "multi"])
+        if args.pick_only
+        else run_parallel([ot_cmd, mb_cmd])
+    )
     setups = [
         ("overtaking", "Overtaking (overtaking.pt)", ot_cmd,
          EnvConfig(behaviour="overtaking", agents=4, opponents=4, max_steps=1000)),

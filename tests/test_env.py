@@ -37,7 +37,7 @@ def offset_of(env, slot: int) -> float:
 
 @pytest.fixture
 def tiny():
-    env = make_env("tiny", agents=1, seed=3, max_steps=400)
+    env = make_env("tiny", agents=1, seed=3, max_steps=400, start_speed=0.0)
     yield env
     env.close()
 
@@ -89,7 +89,7 @@ def test_steering_into_the_border_is_off_track_and_removes_the_agent(tiny):
 
 
 def test_a_rear_end_collision_removes_the_crashed_agents_and_the_others_drive_on():
-    env = make_env("tiny", agents=3, seed=1, max_steps=300)
+    env = make_env("tiny", agents=3, seed=1, max_steps=300, start_speed=0.0)
     try:
         env.reset_arrays(1)
         lanes = {vid: env.sim._sumo.vehicle.getLaneIndex(vid) for vid in env.agents}
@@ -152,7 +152,9 @@ def test_parallel_api_test_passes():
 
 def test_same_seed_and_actions_give_identical_observations_over_200_steps():
     def run() -> np.ndarray:
-        env = make_env("ring", behaviour="overtaking", agents=3, opponents=3, seed=11, max_steps=200)
+        env = make_env(
+            "ring", behaviour="overtaking", agents=3, opponents=3, seed=11, max_steps=200, start_speed=5.0
+        )
         try:
             rng = np.random.default_rng(5)
             trace = [env.reset_arrays(11)]
@@ -256,3 +258,23 @@ def test_bad_network_files_raise_a_clear_error(tmp_path):
     with pytest.raises(BehaveError, match="no multi-lane edge"):
         load_geometry(write_net(tmp_path, lanes=1))
     assert load_geometry(write_net(tmp_path, lanes=2)).edges["e"].lanes == 2
+
+
+def test_start_speed_is_drawn_per_episode_or_fixed():
+    env = make_env("ring", agents=3, seed=7, max_steps=10)
+    try:
+        speeds = set()
+        for seed in (1, 2):
+            env.reset_arrays(seed)
+            assert len(set(env.fleet.speed)) == 1  # one speed for the whole formation
+            speeds.add(float(env.fleet.speed[0]))
+            assert 0.0 <= env.fleet.speed[0] <= 0.7 * 33.34
+        assert len(speeds) == 2
+    finally:
+        env.close()
+    fixed = make_env("ring", agents=2, seed=7, start_speed=12.0)
+    try:
+        fixed.reset_arrays(1)
+        np.testing.assert_allclose(fixed.sim.read_speeds(fixed.agents), 12.0)
+    finally:
+        fixed.close()
