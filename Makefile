@@ -30,6 +30,7 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_env.py
+	$(BIN)/python benchmarks/bench_populate.py
 
 learn-check: $(STAMP)
 	$(BIN)/python benchmarks/learn_check.py --seed $(SEED)

@@ -248,9 +248,12 @@ def _grid_candidates(query: np.ndarray, points: np.ndarray, radius: float) -> tu
     low = low - size
     rows = int(span[1] // size) + 3
     cells = (int(span[0] // size) + 3) * rows
-    cell_p = _flat_cell(points, low, size, rows)
+    columns = cells // rows
+    cell_p = _flat_cell(points, low, size, rows, columns)
     start = np.concatenate([[0], np.cumsum(np.bincount(cell_p, minlength=cells))])
-    around = (_flat_cell(query, low, size, rows)[:, None] + (_OFFSETS[:, 0] * rows + _OFFSETS[:, 1])).ravel()
+    around = (
+        _flat_cell(query, low, size, rows, columns)[:, None] + (_OFFSETS[:, 0] * rows + _OFFSETS[:, 1])
+    ).ravel()
     count = start[around + 1] - start[around]
     per_query = count.reshape(len(query), -1).sum(axis=1)
     return per_query, np.argsort(cell_p, kind="stable")[ranges(start[around], count)]
@@ -259,7 +262,13 @@ def _grid_candidates(query: np.ndarray, points: np.ndarray, radius: float) -> tu
 _OFFSETS = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(-1, 2)
 
 
-def _flat_cell(points: np.ndarray, low: np.ndarray, size: float, rows: int) -> np.ndarray:
-    """Row-major index of each point's grid cell (points lie above `low`: truncation is floor)."""
-    cell = ((points - low) / size).astype(np.int64)
-    return cell[:, 0] * rows + cell[:, 1]
+def _flat_cell(points: np.ndarray, low: np.ndarray, size: float, rows: int, columns: int) -> np.ndarray:
+    """Row-major index of each point's grid cell, kept off the margin cells.
+
+    Every point lies at least one cell above `low`, but float rounding can put the
+    lowest one at 0.999...: clamping keeps all 3x3 neighbour indices inside the grid.
+    """
+    cell = np.floor((points - low) / size).astype(np.int64)
+    x = np.clip(cell[:, 0], 1, columns - 2)
+    y = np.clip(cell[:, 1], 1, rows - 2)
+    return x * rows + y

@@ -231,3 +231,13 @@ def test_neighbour_pairs_are_the_same_with_and_without_the_grid():
     eq, em = np.nonzero(d < 300.0)
     assert len(q) == len(eq)
     assert set(zip(q.tolist(), m.tolist(), strict=True)) == set(zip(eq.tolist(), em.tolist(), strict=True))
+
+
+def test_opponent_grid_handles_points_on_the_bounding_box_edge():
+    """Regression: float rounding once put the lowest point's cell at -1 (negative index)."""
+    rng = np.random.default_rng(1)
+    points = rng.uniform(0, 20000, (1200, 2))
+    points[0] = [points[:, 0].min() - 1e-9, points[:, 1].min()]
+    heading = rng.uniform(-np.pi, np.pi, 1000)
+    rays = opponent_rays(points[:1000], heading, points, np.arange(1000))
+    assert rays.shape == (1000, 36) and np.all(rays <= RAY_RANGE)
