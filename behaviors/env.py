@@ -176,7 +176,6 @@ class BehaveEnv(ParallelEnv):
         self.fleet = Fleet(self.geometry, config.car, config.step_length, self.timer)
         self.agents: list[str] = []
         self._rng = np.random.default_rng(config.seed)
-        self._seed = config.seed
 
     # --- PettingZoo -------------------------------------------------------------------
     def observation_space(self, agent: str) -> spaces.Box:
@@ -223,7 +222,6 @@ class BehaveEnv(ParallelEnv):
         """Start an episode; returns observations [n_agents, D] in slot order."""
         if seed is not None:
             self._rng = np.random.default_rng(seed)
-            self._seed = seed
         sumo_seed = int(self._rng.integers(2**31 - 1))
         if self.sim is None:
             self.sim = SumoSim(self._sim_options(sumo_seed))
@@ -435,9 +433,9 @@ class BehaveEnv(ParallelEnv):
         assert sim is not None
         names = [self.possible_agents[s] for s in slots]
         gone = [n for n, p, leave in zip(names, present, leaving, strict=True) if p and leave]
-        wrecked = [v for v in self.car_ids if v.startswith("passive_") and v in contact]
-        sim.remove(gone + wrecked)
-        self.car_ids = [v for v in self.car_ids if v not in set(wrecked)]
+        wrecked = {v for v in self.car_ids if v.startswith("passive_") and v in contact}
+        sim.remove(gone + sorted(wrecked))
+        self.car_ids = [v for v in self.car_ids if v not in wrecked]
         keep_live = ~leaving[present] if present.any() else np.zeros(0, bool)
         self.fleet.keep(keep_live)
         self.agents = [n for n, leave in zip(names, leaving, strict=True) if not leave]

@@ -74,7 +74,7 @@ class VehicleState:
 
     ids: list[str]
     position: np.ndarray  # [M, 2] front bumper centre (SUMO's vehicle position), metres
-    distance: np.ndarray  # [M] odometer since insertion, metres
+    distance: np.ndarray  # [M] odometer since insertion, metres (empty if not read)
     row: dict[str, int]
 
 
@@ -124,13 +124,13 @@ class SumoSim:
     def step(self) -> None:
         self._sumo.simulationStep()
 
-    def read_vehicles(self) -> VehicleState:
-        """Position and odometer of every vehicle: the one per-step read of the whole fleet."""
+    def read_vehicles(self, with_distance: bool = True) -> VehicleState:
+        """Position (and odometer) of every vehicle: the one per-step read of the whole fleet."""
         v = self._sumo.vehicle
         ids = list(v.getIDList())
         get_pos, get_dist = v.getPosition, v.getDistance
         position = np.array([get_pos(i) for i in ids], float).reshape(-1, 2)
-        distance = np.array([get_dist(i) for i in ids], float)
+        distance = np.array([get_dist(i) for i in ids] if with_distance else [], float)
         return VehicleState(ids, position, distance, {vid: k for k, vid in enumerate(ids)})
 
     def read_agents(self, ids: Sequence[str]) -> AgentReadings:
