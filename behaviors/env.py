@@ -39,6 +39,8 @@ PASSIVE_TYPE = "behave_passive"
 PASSIVE_SPEED = 20.0
 """m/s: maxSpeed of the behave_passive vType (the slower cars to overtake)."""
 START_SPEED_FRACTION = 0.7
+START_HEADWAY = 1.5
+"""Seconds of headway between start places at speed (plus two car lengths)."""
 ROUTE_SECONDS = 3600.0
 """Looping routes are unrolled for at least this much driving at 50 m/s."""
 
@@ -309,22 +311,26 @@ class BehaveEnv(ParallelEnv):
     def _check_capacity(self) -> None:
         lanes = max(info.lanes for info in self.geometry.edges.values() if info.normal)
         cars = self.config.n_agents + self.config.n_opponents
-        needed = self._formation_length(cars, lanes)
+        spacing = self._spacing(self._max_start_speed())
+        needed = self._formation_length(cars, lanes, spacing)
         route_length = sum(self.geometry.edges[e].length for e in self.lap)
         usable = route_length * (0.9 if self.scenario.looping else 0.5)
         if needed > usable:
-            most = int(usable / self.config.spacing * lanes)
+            most = int(usable / spacing * lanes)
             raise BehaveError(
                 f"{cars} cars do not fit on scenario '{self.scenario.name}' "
-                f"({route_length:.0f} m, {lanes} lanes, {self.config.spacing:.0f} m spacing): "
+                f"({route_length:.0f} m, {lanes} lanes, {spacing:.0f} m spacing at the start speed): "
                 f"at most about {most}"
             )
 
-    def _formation_length(self, cars: int, lanes: int) -> float:
-        behind, _ = formation(
-            self.config.n_opponents, cars - self.config.n_opponents, lanes, self.config.spacing
-        )
-        return float(behind.max(initial=0.0)) + 2 * self.config.spacing
+    def _spacing(self, speed: float) -> float:
+        """Same-lane distance between start places: the configured spacing, or more at speed
+        (SUMO refuses to insert a car closer than a safe gap behind another)."""
+        return max(self.config.spacing, START_HEADWAY * speed + 2 * self.config.car.length)
+
+    def _formation_length(self, cars: int, lanes: int, spacing: float) -> float:
+        behind, _ = formation(self.config.n_opponents, cars - self.config.n_opponents, lanes, spacing)
+        return float(behind.max(initial=0.0)) + 2 * spacing
 
     def _populate(self) -> None:
         """Insert passive cars ahead and the agents behind them in a staggered formation."""
@@ -333,13 +339,14 @@ class BehaveEnv(ParallelEnv):
         lanes = min(self.geometry.edges[e].lanes for e in self.lap)
         lap_length = sum(self.geometry.edges[e].length for e in self.lap)
         cars = cfg.n_opponents + cfg.n_agents
-        behind, lane_of = formation(cfg.n_opponents, cfg.n_agents, lanes, cfg.spacing)
+        speed = self._start_speed()
+        spacing = self._spacing(speed)
+        behind, lane_of = formation(cfg.n_opponents, cfg.n_agents, lanes, spacing)
         if self.scenario.looping:
             front = float(self._rng.uniform(0, lap_length))
         else:
-            front = self._formation_length(cars, lanes)
+            front = self._formation_length(cars, lanes, spacing)
         first_lane = int(self._rng.integers(lanes))
-        speed = self._start_speed()
         names = self.possible_agents
         routes = self._routes()
         self.start_progress = np.zeros(cars)
@@ -374,13 +381,17 @@ class BehaveEnv(ParallelEnv):
         self._agent_car_index = np.arange(cfg.n_opponents, cars)
         self._car_row = {vid: k for k, vid in enumerate(vids)}
 
+    def _max_start_speed(self) -> float:
+        if self.config.start_speed is not None:
+            return self.config.start_speed
+        return START_SPEED_FRACTION * min(self.geometry.edges[e].speed for e in self.lap)
+
     def _start_speed(self) -> float:
         """The configured start speed, or one drawn in [0, 0.7 x limit] so that policies learn to
         take over at any speed (populate inserts agents at traffic speed)."""
         if self.config.start_speed is not None:
             return self.config.start_speed
-        limit = min(self.geometry.edges[e].speed for e in self.lap)
-        return float(self._rng.uniform(0.0, START_SPEED_FRACTION * limit))
+        return float(self._rng.uniform(0.0, self._max_start_speed()))
 
     def _routes(self) -> list[str]:
         """One route per start edge: the lap rotated to start there, unrolled for looping scenarios."""
