@@ -59,12 +59,17 @@ class Scenario:
 
 @dataclass(frozen=True)
 class EdgeSpec:
-    """One directed edge: its shape runs from the `src` node to the `dst` node."""
+    """One directed edge: its shape runs from the `src` node to the `dst` node.
+
+    `distance` is the kilometrage at the edge's start (netconvert's edge attribute, which SUMO
+    reports as FCD `distance`); None leaves it out.
+    """
 
     id: str
     src: str
     dst: str
     shape: list[Point]
+    distance: float | None = None
 
 
 def split_segment(a: Point, b: Point, pieces: int) -> list[Point]:
@@ -110,6 +115,15 @@ def straight_edges(length: float, edge_length: float, origin: Point = (0.0, 0.0)
     return [EdgeSpec(f"e{i}", f"n{i}", f"n{i + 1}", [p, q]) for i, (p, q) in enumerate(pairwise(points))]
 
 
+def with_kilometrage(edges: Sequence[EdgeSpec], start: float = 0.0) -> list[EdgeSpec]:
+    """The edges of one road in driving order, each starting where the previous one ends."""
+    out = []
+    for edge in edges:
+        out.append(replace(edge, distance=start))
+        start += sum(math.dist(p, q) for p, q in pairwise(edge.shape))
+    return out
+
+
 def fmt(value: float) -> str:
     return f"{value:.4f}".rstrip("0").rstrip(".")
 
@@ -151,6 +165,8 @@ def write_edges(path: Path, edges: Sequence[EdgeSpec], lanes: int, lane_width: f
         }
         if len(edge.shape) > 2:
             attrs["shape"] = fmt_shape(edge.shape)
+        if edge.distance is not None:
+            attrs["distance"] = fmt(edge.distance)
         ET.SubElement(root, "edge", attrs)
     write_xml(root, path)
 
@@ -335,10 +351,17 @@ def build_straight(
     lane_width: float,
     speed: float = 33.33,
     geo: bool = False,
+    kilometrage: bool = False,
     description: str,
 ) -> Scenario:
-    """A straight road along +x; with geo=True it lies at real UTM-32 coordinates."""
+    """A straight road along +x; with geo=True it lies at real UTM-32 coordinates.
+
+    kilometrage=True gives the edges a continuous `distance` (0 at the start), so FCD `distance`
+    is the road position instead of the position on the current edge.
+    """
     edges = straight_edges(length, edge_length, HIGHWAY_ORIGIN if geo else (0.0, 0.0))
+    if kilometrage:
+        edges = with_kilometrage(edges)
     location = utm_location(edges) if geo else None
     net = build_network(
         out_dir,
@@ -378,6 +401,7 @@ def build_named(name: str, out_dir: Path) -> Scenario:
             lanes=3,
             lane_width=3.5,
             geo=True,
+            kilometrage=True,
             description=DESCRIPTIONS["highway"],
         )
     if name == "tiny":
