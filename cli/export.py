@@ -31,7 +31,8 @@ def plot_command(
     out: Annotated[Path, typer.Option(help="PNG to write")],
     geo: Annotated[bool, typer.Option(help="the FCD holds lon/lat")] = False,
     title: Annotated[str, typer.Option(help="figure title")] = "",
+    net: Annotated[Path | None, typer.Option(help="the network, for true lane widths")] = None,
 ) -> None:
     """Time-space diagram and lateral position over time, coloured by behaviour."""
-    plot_fcd(read_fcd(fcd, geo=geo), out, title=title or fcd.name)
+    plot_fcd(read_fcd(fcd, geo=geo), out, title=title or fcd.name, net=net)
     typer.echo(f"wrote {out}")
