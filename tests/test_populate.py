@@ -185,3 +185,19 @@ def test_bundled_policies_load_and_match_their_behaviours():
         meta = load_checkpoint(PRETRAINED / f"{name}.pt").meta
         assert meta["obs_dim"] == obs_dim and meta["behaviour"] == name
     assert (PRETRAINED / "MODEL_CARD.md").read_text().count("## ") == 3
+
+
+def test_own_routes_file_brings_sumo_traffic(tmp_path, multi_policy):
+    routes = tmp_path / "demand.rou.xml"
+    edges = " ".join(f"e{i}" for i in range(10))
+    routes.write_text(
+        f'<routes><route id="r" edges="{edges}"/>'
+        '<flow id="f" type="behave_background" route="r" begin="0" end="20" number="8" departLane="random"/>'
+        "</routes>"
+    )
+    fcd = tmp_path / "fcd.xml"
+    populate(PopulateConfig(policy=multi_policy, overtakers=1, keepers=1, background=0, routes=routes,
+                            duration=20.0, fcd=fcd))  # fmt: skip
+    ids = set(read_fcd(fcd)["id"])
+    assert sum(i.startswith("f.") for i in ids) == 8
+    assert {"keeper_0", "overtaker_0"} <= ids
