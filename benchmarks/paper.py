@@ -801,6 +801,23 @@ def render(args: argparse.Namespace, v: dict[str, Any]) -> str:
         "term 100 (n - racePos) for every step, as ours does, so reward is much larger than progress "
         "in both.\n"
     )
+    last = list(t4.values())[-1]
+    met = last["colliding_steps_pct"] <= 2.0 and last["passed_frac"] >= 0.9
+    out.append(
+        f"Project goal for overtaking: <= 2% colliding steps with >= 90% of the slower cars passed. "
+        f"After {e_ot} episodes the policy has {last['colliding_steps_pct']:.1f}% colliding steps and "
+        f"passes {100 * last['passed_frac']:.0f}% of the slower cars: the goal is "
+        f"{'met' if met else 'missed'}. "
+        + (
+            ""
+            if met
+            else "Our reading: the race term pays up to 100 (n - 1) every step for rank, so a pass that "
+            "risks a crash (-1000 once, then no more reward) is worth trying early in training; the paper "
+            "needed 600 episodes after the curriculum, far more than this budget, and reached 9.55% "
+            "colliding steps. `make pretrained` trains longer (20 minutes) for the bundled policy; "
+            "see its model card.\n"
+        )
+    )
 
     # Table V
     t5 = v["t5_df"]
