@@ -74,6 +74,7 @@ class Fleet:
         self.slow_time = np.zeros(0)
         self.behaviour_id = np.zeros(0, np.float32)
         self.frame: RoadFrame | None = None
+        self.vehicle_rows = np.zeros(0, np.int64)  # each agent's row in the last VehicleState sensed
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -98,6 +99,7 @@ class Fleet:
         with self.timer.phase("read"):
             readings = sim.read_agents(self.ids)
             rows = np.array([vehicles.row[vid] for vid in self.ids], np.int64)
+            self.vehicle_rows = rows
         with self.timer.phase("sensors"):
             return self._observe(readings, vehicles, rows, with_id)
 

@@ -27,7 +27,7 @@ from behaviors.rewards import (
     step_rewards,
 )
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT
-from behaviors.sim import SimOptions, SumoSim
+from behaviors.sim import SimOptions, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
 from sumo_scenarios import SCENARIO_NAMES, Scenario, get_scenario, route_edges
 
@@ -169,7 +169,6 @@ class BehaveEnv(ParallelEnv):
         self.lap = route_edges(self.scenario)
         self.slot_behaviour = config.behaviour_ids()
         self.possible_agents = [f"agent_{i}" for i in range(config.n_agents)]
-        self._slot_of = {name: i for i, name in enumerate(self.possible_agents)}
         self._obs_space = observation_space(config.obs_size)
         self._act_space = action_space()
         self._check_capacity()
@@ -177,6 +176,7 @@ class BehaveEnv(ParallelEnv):
         self.timer = PhaseTimer()
         self.fleet = Fleet(self.geometry, config.car, config.step_length, self.timer)
         self.agents: list[str] = []
+        self._live_slots = np.zeros(0, np.int64)
         self._rng = np.random.default_rng(config.seed)
 
     # --- PettingZoo -------------------------------------------------------------------
@@ -218,7 +218,8 @@ class BehaveEnv(ParallelEnv):
     # --- batched interface ------------------------------------------------------------
     @property
     def live_slots(self) -> np.ndarray:
-        return np.array([self._slot_of[name] for name in self.agents], np.int64)
+        """Slots of the live agents, in the order observations come and actions go."""
+        return self._live_slots
 
     def reset_arrays(self, seed: int | None = None) -> np.ndarray:
         """Start an episode; returns observations [n_agents, D] in slot order."""
@@ -233,7 +234,7 @@ class BehaveEnv(ParallelEnv):
         self.steps = 0
         vehicles = self.sim.read_vehicles()
         self.live_obs = self.fleet.sense(self.sim, vehicles, self.config.behaviour == "multi")
-        self._update_progress(vehicles)
+        self._update_progress(vehicles, self._live_slots)
         return self.live_obs
 
     def step_arrays(self, actions: np.ndarray) -> StepBatch:
@@ -258,7 +259,7 @@ class BehaveEnv(ParallelEnv):
             fleet.keep(present)
         if present.any():
             next_obs[present] = fleet.sense(sim, vehicles, self.config.behaviour == "multi")
-        self._update_progress(vehicles)
+        self._update_progress(vehicles, slots[present])
         if actuation is None:
             speed, angle, off_track = (
                 self._follow_sumo(present),
@@ -267,7 +268,9 @@ class BehaveEnv(ParallelEnv):
             )
         else:
             speed, angle, off_track = actuation.speed, actuation.angle, actuation.off_track & present
-        collided = np.array([vid in contact for vid in self.agents], bool)
+        collided = (
+            np.array([vid in contact for vid in self.agents], bool) if contact else np.zeros(len(slots), bool)
+        )
         no_progress = (self._slow_time(present) >= NO_PROGRESS_SECONDS) & present
         race = race_positions(self.progress)[slots]
         terms = step_rewards(
@@ -374,11 +377,12 @@ class BehaveEnv(ParallelEnv):
         if missing:
             raise BehaveError(f"SUMO could not insert {len(missing)} cars (spacing too small for the road)")
         self.car_ids = vids
+        self.passive_ids = vids[: cfg.n_opponents]
         self.agents = list(agent_ids)
+        self._live_slots = np.arange(len(agent_ids))
         self.fleet = Fleet(self.geometry, cfg.car, cfg.step_length, self.timer)
         self.fleet.add(agent_ids, np.full(len(agent_ids), speed), self.slot_behaviour)
         self.progress = self.start_progress.copy()
-        self._agent_car_index = np.arange(cfg.n_opponents, cars)
         self._car_row = {vid: k for k, vid in enumerate(vids)}
 
     def _max_start_speed(self) -> float:
@@ -417,9 +421,15 @@ class BehaveEnv(ParallelEnv):
             distance -= length
         raise AssertionError("unreachable")
 
-    def _update_progress(self, vehicles) -> None:
-        """Progress along the route of every scenario car: start position plus odometer."""
-        for vid, k in self._car_row.items():
+    def _update_progress(self, vehicles: VehicleState, sensed_slots: np.ndarray) -> None:
+        """Progress along the route of every scenario car: start position plus odometer.
+
+        The agents just sensed come with their vehicle rows (no per-car lookup); only the few
+        passive cars are looked up by id.
+        """
+        cars = self.config.n_opponents + sensed_slots
+        self.progress[cars] = self.start_progress[cars] + vehicles.distance[self.fleet.vehicle_rows]
+        for k, vid in enumerate(self.passive_ids):
             row = vehicles.row.get(vid)
             if row is not None:
                 self.progress[k] = self.start_progress[k] + vehicles.distance[row]
@@ -450,6 +460,7 @@ class BehaveEnv(ParallelEnv):
         keep_live = ~leaving[present] if present.any() else np.zeros(0, bool)
         self.fleet.keep(keep_live)
         self.agents = [n for n, leave in zip(names, leaving, strict=True) if not leave]
+        self._live_slots = slots[~leaving]
 
 
 def observation_space(size: int) -> spaces.Box:
