@@ -6,12 +6,11 @@ calling this never changes the global matplotlib state of the caller.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from behaviors.errors import BehaveError
+from behaviors.files import atomic_path
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -130,17 +129,5 @@ def _decorate(space: Axes, lateral: Axes, along: str, title: str) -> None:
 
 def _save_png(figure: Figure, out: Path) -> None:
     """Render to a temp file beside `out`, then rename: no half-written PNG on failure."""
-    if not out.parent.is_dir():
-        raise BehaveError(f"output directory does not exist: {out.parent}")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=".behave-plot-", suffix=".png", dir=out.parent)
-    except OSError as err:
-        why = f"output directory is not writable: {out.parent} ({err.strerror})"
-        raise BehaveError(why) from None
-    try:
-        with os.fdopen(fd, "wb") as f:
-            figure.savefig(f, format="png", dpi=110)
-        os.replace(tmp, out)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with atomic_path(Path(out)) as tmp:
+        figure.savefig(tmp, format="png", dpi=110)
