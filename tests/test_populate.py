@@ -64,7 +64,6 @@ def test_populate_the_bundled_highway_writes_valid_fcd_with_both_behaviours(tmp_
     types = set(df["type"])
     assert {"behave_keeper", "behave_overtaker", "behave_background"} <= types
     assert summary.vehicles >= 16 and summary.agent_steps > 0
-    assert summary.real_time_factor > 1
     assert not [p for p in fcd.parent.iterdir() if p.name.startswith(".")]  # no temp files left
 
 

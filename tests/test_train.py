@@ -106,7 +106,11 @@ def test_sigterm_saves_a_checkpoint_and_the_state_to_resume(tmp_path):
         "from behaviors.train import TrainConfig, prepare_run\n"
         f"t = prepare_run(TrainConfig(scenario='tiny', agents=2, max_steps=40, warmup=32, batch_size=16, "
         f"hidden=(32, 32), episodes=10000), Path({str(out)!r}), resume=False)\n"
-        "threading.Timer(3.0, lambda: os.kill(os.getpid(), signal.SIGTERM)).start()\n"
+        "def stop_after_first_episode():\n"
+        f"    while not Path({str(out / 'metrics.csv')!r}).exists():\n"
+        "        time.sleep(0.05)\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "threading.Thread(target=stop_after_first_episode, daemon=True).start()\n"
         "t.run()\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
