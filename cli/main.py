@@ -34,3 +34,9 @@ def main() -> None:
     except BehaveError as exc:
         print(f"behave: error: {exc}", file=sys.stderr)
         sys.exit(2)
+    except OSError as exc:  # a file the user named that cannot be read or written
+        print(f"behave: error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    except KeyboardInterrupt:  # outputs are atomic: nothing half-written is left behind
+        print("behave: interrupted", file=sys.stderr)
+        sys.exit(130)
