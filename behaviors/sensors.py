@@ -223,15 +223,15 @@ def _neighbours(
         q, m = np.nonzero(close)
         return q, m, dx[q, m], dy[q, m], square[q, m]
     per_query, m = _grid_candidates(query, points, radius)
-    dx = points[:, 0][m] - np.repeat(query[:, 0], per_query)
-    dy = points[:, 1][m] - np.repeat(query[:, 1], per_query)
+    q = np.repeat(np.arange(len(query)), per_query)  # one repeat, then plain gathers
+    dx = points[:, 0][m] - query[:, 0][q]
+    dy = points[:, 1][m] - query[:, 1][q]
     square = dx * dx + dy * dy
     close = square < radius**2
     if exclude is not None:
-        close &= m != np.repeat(exclude, per_query)
+        close &= m != exclude[q]
     keep = np.flatnonzero(close)
-    q = np.repeat(np.arange(len(query)), per_query)[keep]
-    return q, m[keep], dx[keep], dy[keep], square[keep]
+    return q[keep], m[keep], dx[keep], dy[keep], square[keep]
 
 
 def _grid_candidates(query: np.ndarray, points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
