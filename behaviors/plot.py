@@ -68,7 +68,9 @@ def plot_fcd(
         style.update(AGENT_STYLE if colour != SUMO_CAR[1] else SUMO_CAR_STYLE)
         space.plot(trace["time"], trace[along], **style)
         lateral.plot(trace["time"], _lateral_lanes(trace, widths, lane_width), **style)
-    _decorate(space, lateral, along, title)
+    index = _lane_index(df["lane"]).dropna()
+    lanes = (int(index.min()), int(index.max())) if len(index) else (0, 0)
+    _decorate(space, lateral, along, title, lanes)
     _save_png(figure, Path(out))
 
 
@@ -76,7 +78,9 @@ def _along_column(df: pd.DataFrame) -> str:
     """`distance` if it is a road position (never falls along a trace), else `odometer`."""
     present = [c for c in ALONG_LABELS if c in df.columns and df[c].notna().any()]
     if not present:
-        raise BehaveError("FCD table has no distance, odometer or pos column to plot")
+        if df.empty:  # no vehicle drove: nothing is drawn, the label is moot
+            return "pos"
+        raise BehaveError("FCD table has no distance, odometer or pos values to plot")
     if present[0] == "distance" and len(present) > 1:
         steps = df.groupby("id", sort=False)["distance"].diff()  # df is sorted by id, time
         if steps.min(skipna=True) < -DISTANCE_NOISE:
@@ -104,27 +108,36 @@ def _lane_widths(net: Path) -> dict[str, float]:
 
 def _lateral_lanes(trace: pd.DataFrame, widths: dict[str, float], lane_width: float) -> pd.Series:
     """Lateral position in lanes: index of the lane (its id ends in _<index>) + posLat / width."""
-    index = trace["lane"].str.rsplit("_", n=1).str[-1].astype("float64")
+    index = _lane_index(trace["lane"])
     width = trace["lane"].map(widths).astype("float64").fillna(lane_width)
     return index + trace["posLat"] / width
 
 
-def _decorate(space: Axes, lateral: Axes, along: str, title: str) -> None:
+def _lane_index(lanes: pd.Series) -> pd.Series:
+    """Index of each lane within its edge: SUMO lane ids end in _<index>."""
+    return lanes.str.rsplit("_", n=1).str[-1].astype("float64")
+
+
+def _decorate(space: Axes, lateral: Axes, along: str, title: str, lanes: tuple[int, int]) -> None:
+    """Labels, lane markings (dashed between lanes, solid at the road's edges), one legend."""
     space.set_ylabel(ALONG_LABELS[along])
     space.set_title(title or "FCD trace")
     lateral.set_ylabel("lateral position [lanes]")
     lateral.set_xlabel("time [s]")
+    first, last = lanes
+    edges = [index - 0.5 for index in range(first, last + 2)]  # half a lane off each centre
+    for edge in edges:
+        outer = edge in (edges[0], edges[-1])
+        style = {"linestyle": "-", "alpha": 0.8} if outer else {"linestyle": "--", "alpha": 0.5}
+        lateral.axhline(edge, color="black", linewidth=0.8, zorder=1, **style)
     low, high = lateral.get_ylim()
-    low, high = min(low, round(low) - 0.5), max(high, round(high) + 0.5)  # outer lane edges
-    for line in range(round(low), round(high) + 1):  # lane lines lie half a lane off centre
-        lateral.axhline(line - 0.5, color="black", linewidth=0.6, linestyle="--", alpha=0.5)
-    lateral.set_ylim(low - 0.1, high + 0.1)
-    lateral.yaxis.get_major_locator().set_params(integer=True)
-    for axes in (space, lateral):
-        axes.grid(alpha=0.3)
+    lateral.set_ylim(min(low, edges[0] - 0.15), max(high, edges[-1] + 0.15))
+    lateral.set_yticks(range(first, last + 1), [f"lane {index}" for index in range(first, last + 1)])
+    space.grid(alpha=0.3)
+    lateral.grid(alpha=0.3, axis="x")
     handles, labels = space.get_legend_handles_labels()
     unique = dict(zip(labels, handles, strict=True))  # one entry per behaviour, not per car
-    space.legend(unique.values(), unique.keys(), loc="upper left")
+    space.legend(unique.values(), unique.keys(), loc="upper left", framealpha=0.9)
 
 
 def _save_png(figure: Figure, out: Path) -> None:

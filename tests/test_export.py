@@ -19,7 +19,7 @@ from behaviors.export import (
     read_fcd,
     validate_fcd_xml,
 )
-from behaviors.plot import plot_fcd
+from behaviors.plot import ALONG_LABELS, _along_column, _lane_widths, _lateral_lanes, plot_fcd
 from behaviors.sumo_home import sumo_binary
 
 UTM32 = "+proj=utm +zone=32 +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
@@ -75,12 +75,15 @@ def test_fcd_options_name_sumo_attributes(tmp_path: Path) -> None:
 
 def test_three_formats_read_the_same(run: Path) -> None:
     xml, csv, parquet = (read_fcd(run / f"run.{ext}") for ext in ("xml", "csv", "parquet"))
-    assert list(xml.columns[:12]) == [
+    assert list(xml.columns[:13]) == [
         *("time", "id", "x", "y", "angle", "type", "speed", "pos", "lane", "posLat"),
-        *("acceleration", "distance"),
+        *("acceleration", "distance", "odometer"),
     ]
     assert len(xml) > 60 and set(xml["type"]) >= {"behave_keeper", "behave_overtaker"}
-    assert xml["distance"].notna().all() and xml["acceleration"].notna().all()
+    assert xml[["distance", "acceleration", "odometer"]].notna().all().all()
+    # the odometer counts from insertion: 0 on each vehicle's first step, then the metres driven
+    first = xml.groupby("id")["odometer"].first()
+    assert (first == 0).all() and (xml.groupby("id")["odometer"].diff().dropna() >= 0).all()
     # xml and csv are rounded to SUMO's 2 decimals; parquet keeps float32
     pd.testing.assert_frame_equal(xml, csv)
     pd.testing.assert_frame_equal(xml, parquet, check_exact=False, atol=0.006)
@@ -191,3 +194,35 @@ def test_plot_writes_png(run: Path, tmp_path: Path) -> None:
     plot_fcd(read_fcd(run / "run.parquet"), out, title="test", lane_width=3.5)
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 10_000
     assert [p.name for p in tmp_path.iterdir()] == ["trace.png"]
+
+
+def test_plot_uses_the_net_lane_widths(run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "trace.png"
+    df = read_fcd(run / "run.xml")
+    plot_fcd(df, out, title="test", net=run / "n.net.xml")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    widths = _lane_widths(run / "n.net.xml")
+    assert widths["e_0"] == widths["e_1"] == 3.5
+    trace = pd.DataFrame(
+        {"lane": pd.array(["e_0", "e_1", "x_1"], dtype="string"), "posLat": [1.75, -0.7, 1.6]}
+    )
+    assert list(_lateral_lanes(trace, widths, 3.2)) == pytest.approx([0.5, 0.8, 1.5])  # x_1: fallback
+    with pytest.raises(BehaveError, match="net file not found"):
+        plot_fcd(df, out, net=run / "missing.net.xml")
+    with pytest.raises(BehaveError, match=r"r\.rou\.xml is not a SUMO net"):
+        plot_fcd(df, out, net=run / "r.rou.xml")
+
+
+def test_plot_axis_is_road_position_or_odometer() -> None:
+    def trace(distance: list[float]) -> pd.DataFrame:
+        n = len(distance)
+        odometer = [float(i) * 30 for i in range(n)]
+        return pd.DataFrame({"id": ["a"] * n, "time": range(n), "distance": distance, "odometer": odometer})
+
+    assert _along_column(trace([100.0, 130.0, 159.99, 159.98, 190.0])) == "distance"  # rounding noise
+    assert _along_column(trace([240.0, 270.0, 0.5, 30.5])) == "odometer"  # per-edge sawtooth
+    assert _along_column(trace([float("nan")] * 3)) == "odometer"
+    # traces are judged one by one: one car's start below another's end is no sawtooth
+    two = pd.concat([trace([500.0, 530.0]), trace([0.0, 30.0]).assign(id="b")])
+    assert _along_column(two) == "distance"
+    assert set(ALONG_LABELS.values()) >= {"road position [m]", "distance driven since insertion [m]"}

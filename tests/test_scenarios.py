@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import subprocess
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -12,6 +13,8 @@ import pytest
 import sumolib
 
 from behaviors.errors import BehaveError
+from behaviors.export import fcd_options, read_fcd
+from behaviors.sumo_home import sumo_binary
 from sumo_scenarios import (
     SCENARIO_NAMES,
     Scenario,
@@ -103,6 +106,30 @@ def test_highway_has_a_utm_projection() -> None:
     with simulation(scenario) as sim:
         lon, lat = sim.simulation.convertGeo(0.0, 0.0)
     assert (lon, lat) == (pytest.approx(11.5545, abs=1e-3), pytest.approx(48.1488, abs=1e-3))
+
+
+def test_highway_fcd_distance_is_the_road_position(tmp_path) -> None:
+    """Edges carry kilometrage 0, 300, ..., so FCD `distance` runs on across edges and junctions."""
+    scenario = get_scenario("highway")
+    cars = tmp_path / "cars.rou.xml"
+    cars.write_text(
+        '<routes><vehicle id="late" route="main" depart="0" departPos="150" departSpeed="max"/>'
+        '<vehicle id="early" route="main" depart="5" departLane="2" departSpeed="max"/></routes>'
+    )
+    fcd = tmp_path / "fcd.csv"
+    sumo = [sumo_binary("sumo"), "-n", str(scenario.net), "-r", f"{scenario.routes},{cars}"]
+    sumo += ["--step-length", str(DT), "--end", "120", "--no-step-log", "--no-warnings"]
+    subprocess.run([*sumo, *fcd_options(fcd, geo=False)], check=True, capture_output=True)
+    df = read_fcd(fcd).sort_values(["id", "time"])
+    assert set(df["id"]) == {"late", "early"}
+    assert set(df["lane"].str.rsplit("_", n=1).str[0]) >= set(route_edges(scenario))  # all 10 edges
+    for _, trace in df.groupby("id"):
+        assert (trace["distance"].diff().dropna() >= -0.01).all()
+        assert trace["distance"].max() > 2900  # not the 0-300 m sawtooth of the edge positions
+        start = trace["distance"].iloc[0]
+        # the odometer also counts the 0.1 m junction lanes, which carry no kilometrage
+        offset = (trace["distance"] - trace["odometer"]).to_numpy()
+        assert offset == pytest.approx(start, abs=0.1 * 9 + 0.02)
 
 
 def test_build_reproduces_the_shipped_networks(tmp_path) -> None:
