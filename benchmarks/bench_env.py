@@ -13,15 +13,14 @@ Usage: python benchmarks/bench_env.py [--agents 6,100,1000] [--steps 200] [--see
 from __future__ import annotations
 
 import argparse
-import csv
 import tempfile
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from common import progress, write_csv
 from rich.console import Console
 from rich.table import Table
 
@@ -295,14 +294,6 @@ def target_lines(results: list[Result]) -> Iterator[str]:
             )
 
 
-def write_csv(results: list[Result], path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(COLUMNS)
-        writer.writerows(row_of(r, for_csv=True) for r in results)
-
-
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--agents", default="6,100,1000", help="comma-separated agent counts")
@@ -317,28 +308,20 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
-@contextmanager
-def progress(console: Console, case: Case) -> Iterator[None]:
-    start = time.perf_counter()
-    console.print(f"[dim]running {case.label}, {case.agents} agents ...[/dim]", end=" ")
-    yield
-    console.print(f"[dim]{time.perf_counter() - start:.1f} s[/dim]")
-
-
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     console = Console(width=max(Console().width, 170))
     results = []
     with tempfile.TemporaryDirectory(prefix="behave_bench_") as tmp:
         for case in cases_for(args.agent_counts):
-            with progress(console, case):
+            with progress(console, f"running {case.label}, {case.agents} agents"):
                 scenario = case.scenario(Path(tmp))
                 results.append(run_case(case, scenario, args.seed, args.steps, args.rounds))
     print_table(results, args, console)
     for line in target_lines(results):
         console.print(line)
     if args.csv is not None:
-        write_csv(results, args.csv)
+        write_csv(args.csv, COLUMNS, (row_of(r, for_csv=True) for r in results))
         console.print(f"wrote {args.csv}")
 
 

@@ -20,17 +20,16 @@ from __future__ import annotations
 
 import argparse
 import cProfile
-import csv
 import io
 import pstats
 import tempfile
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
+from common import progress, write_csv
 from rich.console import Console
 from rich.table import Table
 
@@ -293,14 +292,6 @@ def target_lines(results: list[Result]) -> Iterator[str]:
             yield f"target: 1,000 agents <= {TARGET_RATIO_1000}x SUMO alone -> {r.ratio:.2f}x ({ok})"
 
 
-def write_csv(results: list[Result], path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(COLUMNS)
-        writer.writerows(row_of(r, for_csv=True) for r in results)
-
-
 def parse_rows(text: str) -> list[Row]:
     rows = []
     for item in text.split(","):
@@ -330,14 +321,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
-@contextmanager
-def progress(console: Console, label: str) -> Iterator[None]:
-    start = time.perf_counter()
-    console.print(f"[dim]{label} ...[/dim]", end=" ")
-    yield
-    console.print(f"[dim]{time.perf_counter() - start:.1f} s[/dim]")
-
-
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     torch.set_num_threads(1)  # as `behave populate` does
@@ -354,7 +337,7 @@ def main(argv: list[str] | None = None) -> None:
         for line in target_lines(results):
             console.print(line)
         if args.csv is not None:
-            write_csv(results, args.csv)
+            write_csv(args.csv, COLUMNS, (row_of(r, for_csv=True) for r in results))
             console.print(f"wrote {args.csv}")
         if args.profile:
             largest = max(args.row_list, key=lambda r: r.agents)

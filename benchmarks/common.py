@@ -1,0 +1,28 @@
+"""Pieces the benchmark scripts share (they run as scripts: `python benchmarks/bench_*.py`)."""
+
+from __future__ import annotations
+
+import csv
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+from rich.console import Console
+
+
+@contextmanager
+def progress(console: Console, label: str) -> Iterator[None]:
+    """Print what runs, then how long it took, on one line."""
+    start = time.perf_counter()
+    console.print(f"[dim]{label} ...[/dim]", end=" ")
+    yield
+    console.print(f"[dim]{time.perf_counter() - start:.1f} s[/dim]")
+
+
+def write_csv(path: Path, header: Sequence[str], rows: Iterable[Sequence[str]]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        writer.writerows(rows)
