@@ -38,6 +38,7 @@ from behaviors.sensors import OBSERVATION_LAYOUT
 
 ALGORITHMS = ("ps-ddpg", "ddpg", "multi-ddpg")
 STATE_VERSION = 1
+_LEARNER = DDPGConfig()
 
 
 @dataclass(frozen=True)
@@ -57,16 +58,17 @@ class TrainConfig:
     step_length: float = 0.2
     seed: int = 0
     updates_per_step: int | None = None  # None: one per live agent (the paper)
-    hidden: tuple[int, ...] = (256, 256)
-    batch_size: int = 64
-    gamma: float = 0.99
-    tau: float = 0.001
-    actor_lr: float = 1e-4
-    critic_lr: float = 1e-3
-    buffer_size: int = 100_000
-    warmup: int = 1000
-    explore_decay_steps: int = 100_000
-    batched_updates: bool = False
+    # learner settings: the defaults are DDPGConfig's, named alike (one source of truth)
+    hidden: tuple[int, ...] = _LEARNER.hidden
+    batch_size: int = _LEARNER.batch_size
+    gamma: float = _LEARNER.gamma
+    tau: float = _LEARNER.tau
+    actor_lr: float = _LEARNER.actor_lr
+    critic_lr: float = _LEARNER.critic_lr
+    buffer_size: int = _LEARNER.buffer_size
+    warmup: int = _LEARNER.warmup
+    explore_decay_steps: int = _LEARNER.explore_decay_steps
+    batched_updates: bool = _LEARNER.batched
     reward_scale: float = 0.01  # rewards are ~100/step in km/h: scaled for the critic, logged raw
     checkpoint_every: int = 10
     init: str | None = None  # checkpoint to start from (curriculum: overtaking from lane keeping)
@@ -101,18 +103,11 @@ class TrainConfig:
         )
 
     def ddpg_config(self) -> DDPGConfig:
-        return DDPGConfig(
-            gamma=self.gamma,
-            tau=self.tau,
-            actor_lr=self.actor_lr,
-            critic_lr=self.critic_lr,
-            batch_size=self.batch_size,
-            buffer_size=self.buffer_size,
-            hidden=tuple(self.hidden),
-            warmup=self.warmup,
-            explore_decay_steps=self.explore_decay_steps,
-            batched=self.batched_updates,
-        )
+        shared = {
+            f.name: getattr(self, f.name) for f in dataclasses.fields(DDPGConfig) if hasattr(self, f.name)
+        }
+        shared["hidden"] = tuple(self.hidden)  # JSON round trips turn it into a list
+        return dataclasses.replace(_LEARNER, **shared, batched=self.batched_updates)
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
