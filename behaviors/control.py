@@ -88,6 +88,8 @@ class Fleet:
 
     def keep(self, mask: np.ndarray) -> None:
         """Drop the rows where `mask` is False (agents that left)."""
+        if mask.all():
+            return
         self.ids = [vid for vid, k in zip(self.ids, mask, strict=True) if k]
         self.speed, self.angle = self.speed[mask], self.angle[mask]
         self.slow_time, self.behaviour_id = self.slow_time[mask], self.behaviour_id[mask]

@@ -376,8 +376,8 @@ class BehaveEnv(ParallelEnv):
         missing = set(vids) - set(sim.vehicle_ids())
         if missing:
             raise BehaveError(f"SUMO could not insert {len(missing)} cars (spacing too small for the road)")
-        self.car_ids = vids
         self.passive_ids = vids[: cfg.n_opponents]
+        self._passive_on_road = set(self.passive_ids)
         self.agents = list(agent_ids)
         self._live_slots = np.arange(len(agent_ids))
         self.fleet = Fleet(self.geometry, cfg.car, cfg.step_length, self.timer)
@@ -449,16 +449,21 @@ class BehaveEnv(ParallelEnv):
         return out
 
     def _leave(self, slots: np.ndarray, present: np.ndarray, leaving: np.ndarray, contact: set[str]) -> None:
-        """Take agents that ended off the road (and passive cars wrecked in a collision)."""
+        """Take agents that ended off the road (and passive cars wrecked in a collision).
+
+        Most steps nobody leaves: then nothing is rebuilt (no per-agent Python work).
+        """
         sim = self.sim
         assert sim is not None
+        wrecked = sorted(self._passive_on_road & contact)
+        self._passive_on_road.difference_update(wrecked)
+        if not leaving.any():
+            sim.remove(wrecked)
+            return
         names = [self.possible_agents[s] for s in slots]
         gone = [n for n, p, leave in zip(names, present, leaving, strict=True) if p and leave]
-        wrecked = {v for v in self.car_ids if v.startswith("passive_") and v in contact}
-        sim.remove(gone + sorted(wrecked))
-        self.car_ids = [v for v in self.car_ids if v not in wrecked]
-        keep_live = ~leaving[present] if present.any() else np.zeros(0, bool)
-        self.fleet.keep(keep_live)
+        sim.remove(gone + wrecked)
+        self.fleet.keep(~leaving[present])
         self.agents = [n for n, leave in zip(names, leaving, strict=True) if not leave]
         self._live_slots = slots[~leaving]
 

@@ -246,7 +246,7 @@ class Population:
             contact = sim.collisions()
             present = set(sim.vehicle_ids())
         ids = np.array(fleet.ids, dtype=object)
-        crashed = np.array([v in contact for v in fleet.ids], bool)
+        crashed = np.array([v in contact for v in fleet.ids], bool) if contact else np.zeros(len(fleet), bool)
         gone = np.array([v not in present for v in fleet.ids], bool)
         leaving = crashed | off_track | gone
         self.summary.collisions += int(crashed.sum())
