@@ -20,9 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from common import progress, write_csv
+from common import print_table, progress, write_csv
 from rich.console import Console
-from rich.table import Table
 
 from behaviors import make_env
 from behaviors.env import BehaveEnv
@@ -267,17 +266,12 @@ def row_of(r: Result, for_csv: bool = False) -> list[str]:
     ]
 
 
-def print_table(results: list[Result], args: argparse.Namespace, console: Console) -> None:
+def print_results(results: list[Result], args: argparse.Namespace, console: Console) -> None:
     title = (
         f"behave env step cost, ms/step: {args.rounds} x {args.steps} timed steps "
         f"(each after {WARMUP_STEPS} warm-up), seed {args.seed}"
     )
-    table = Table(title=title)
-    for name in COLUMNS:
-        table.add_column(name, justify="left" if name == "scenario" else "right")
-    for r in results:
-        table.add_row(*row_of(r))
-    console.print(table)
+    print_table(console, title, COLUMNS, (row_of(r) for r in results))
 
 
 def target_lines(results: list[Result]) -> Iterator[str]:
@@ -317,7 +311,7 @@ def main(argv: list[str] | None = None) -> None:
             with progress(console, f"running {case.label}, {case.agents} agents"):
                 scenario = case.scenario(Path(tmp))
                 results.append(run_case(case, scenario, args.seed, args.steps, args.rounds))
-    print_table(results, args, console)
+    print_results(results, args, console)
     for line in target_lines(results):
         console.print(line)
     if args.csv is not None:

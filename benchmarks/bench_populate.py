@@ -29,9 +29,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
-from common import progress, write_csv
+from common import print_table, progress, write_csv
 from rich.console import Console
-from rich.table import Table
 
 from behaviors.populate import PRETRAINED, PopulateConfig, Population, partial_path
 from behaviors.sim import SimOptions, SumoSim
@@ -265,18 +264,13 @@ def row_of(r: Result, for_csv: bool = False) -> list[str]:
     ]
 
 
-def print_table(results: list[Result], args: argparse.Namespace, console: Console) -> None:
+def print_results(results: list[Result], args: argparse.Namespace, console: Console) -> None:
     title = (
         f"behave populate step cost, ms/step, FCD on: {args.rounds} x {args.steps} timed steps of "
         f"{STEP_LENGTH} s (each after {WARMUP_STEPS} warm-up), {args.length / 1000:.0f} km 3-lane highway, "
         f"seed {args.seed}"
     )
-    table = Table(title=title)
-    for name in COLUMNS:
-        table.add_column(name, justify="left" if name == "policy" else "right")
-    for r in results:
-        table.add_row(*row_of(r))
-    console.print(table)
+    print_table(console, title, COLUMNS, (row_of(r) for r in results))
     console.print(
         "RTF = real-time factor; ot/kp = overtakers/keepers; SUMO alone = ms/step of the SUMO step with "
         "the same vehicle count, all behave_background, FCD on; ratio = ms/step / SUMO alone;\n"
@@ -333,7 +327,7 @@ def main(argv: list[str] | None = None) -> None:
         for row in args.row_list:
             with progress(console, f"{row.agents:,} agents + {row.background} background"):
                 results.append(run_row(row, net, tmp, args.steps, args.seed, args.rounds))
-        print_table(results, args, console)
+        print_results(results, args, console)
         for line in target_lines(results):
             console.print(line)
         if args.csv is not None:
