@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from behaviors.sensors import wrap_angle
+from behaviors.geometry import wrap_angle
 
 
 @dataclass(frozen=True)

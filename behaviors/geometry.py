@@ -27,6 +27,9 @@ RAY_RANGE = 200.0
 GRID_CELL = 50.0
 """Edge length of the culling grid's cells, metres."""
 
+HEADING_SECTORS = 8
+"""Candidate lists are split by heading as well: sector k holds headings within pi/8 of k pi/4."""
+
 JUNCTION_GAP = 5.0
 """Border ends of consecutive edges closer than this (metres) are joined across the junction."""
 
@@ -49,11 +52,13 @@ class EdgeInfo:
 class RoadGeometry:
     """Borders (segments + culling grid) and lane axes of a network's normal edges."""
 
-    seg_a: np.ndarray  # [M, 2] segment start points (column-major)
-    seg_b: np.ndarray  # [M, 2] segment end points (column-major)
-    cell_keys: np.ndarray  # [C] sorted grid-cell keys that have candidates
-    cell_start: np.ndarray  # [C + 1] cell i's candidates are cell_segments[cell_start[i]:cell_start[i + 1]]
-    cell_segments: np.ndarray  # [total] segment ids near each cell, cell after cell
+    seg_a: np.ndarray  # [M, 2] segment start points
+    seg_b: np.ndarray  # [M, 2] segment end points
+    seg_za: np.ndarray  # [M] complex: seg_a as x + iy (car-frame transforms are one multiply)
+    seg_zb: np.ndarray  # [M] complex: seg_b as x + iy
+    cell_keys: np.ndarray  # [C] sorted (grid cell, heading sector) keys that have candidates
+    cell_start: np.ndarray  # [C + 1] key i's candidates are cell_segments[cell_start[i]:cell_start[i + 1]]
+    cell_segments: np.ndarray  # [total] segment ids per key, key after key
     lane_index: dict[str, int]  # lane id -> row in the lane tables
     lane_edge: list[str]  # lane row -> edge id
     lane_number: np.ndarray  # [L] index of the lane within its edge (0 = rightmost)
@@ -77,17 +82,24 @@ class RoadGeometry:
         angle = self.axis_angle[i] + t * (self.axis_angle[i + 1] - self.axis_angle[i])
         return angle, self.axis_curvature[i]
 
-    def candidates(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(point row, segment id) pairs: the border segments that may lie within RAY_RANGE of each point.
+    def candidates(self, points: np.ndarray, heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(point row, segment id) pairs: the border segments a track ray from each pose may hit.
 
+        That is every segment within RAY_RANGE that is not wholly behind the car.
         Flat pairs rather than a padded table: cells on curves list hundreds of
         segments, cells on straights a handful, and padding would cost them all the same.
         """
-        keys = cell_key(points)
+        keys = cell_key(points) * HEADING_SECTORS + heading_sector(heading)
         row = np.minimum(np.searchsorted(self.cell_keys, keys), len(self.cell_keys) - 1)
         start = self.cell_start[row]
         count = np.where(self.cell_keys[row] == keys, self.cell_start[row + 1] - start, 0)
         return np.repeat(np.arange(len(points)), count), self.cell_segments[ranges(start, count)]
+
+
+def heading_sector(heading: np.ndarray) -> np.ndarray:
+    """Index k of the heading sector [k pi/4 - pi/8, k pi/4 + pi/8) each heading lies in."""
+    width = 2 * np.pi / HEADING_SECTORS
+    return np.floor(heading / width + 0.5).astype(np.int64) % HEADING_SECTORS
 
 
 def cell_key(points: np.ndarray) -> np.ndarray:
@@ -196,8 +208,10 @@ def build_geometry(
     a, b = a[keep], b[keep]
     keys, start, segments = candidate_table(a, b)
     return RoadGeometry(
-        seg_a=np.asfortranarray(a),  # column-major: seg_a[:, 0] etc. are contiguous, fast to gather from
-        seg_b=np.asfortranarray(b),
+        seg_a=a,
+        seg_b=b,
+        seg_za=a[:, 0] + 1j * a[:, 1],
+        seg_zb=b[:, 0] + 1j * b[:, 1],
         cell_keys=keys,
         cell_start=start,
         cell_segments=segments,
@@ -240,24 +254,46 @@ def offset_polyline(points: np.ndarray, offset: float) -> np.ndarray:
 
 
 def candidate_table(seg_a: np.ndarray, seg_b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For every grid cell near a border, the border segments within reach of a ray from it.
+    """For every grid cell near a border and every heading sector, the segments a track ray may hit.
 
     A segment qualifies for a cell when its distance to the cell's centre is at most
-    RAY_RANGE plus the cell's half diagonal, so every segment a 200 m ray from
-    anywhere in the cell can touch is listed. Returns the sorted cell keys and the
-    lists in CSR form (offsets [C + 1], flat segment ids).
+    RAY_RANGE plus the cell's half diagonal, and for a heading sector when one of its
+    end points can lie ahead of a car somewhere in the cell with a heading in the
+    sector (track rays span only the front half-plane; a segment with both ends
+    behind the car is wholly behind it). Both tests are conservative, so every
+    segment a ray can touch is listed. Returns the sorted keys (see `candidates`) and
+    the lists in CSR form (offsets [C + 1], flat segment ids).
     """
-    reach = RAY_RANGE + GRID_CELL * np.sqrt(0.5)
+    half_diagonal = GRID_CELL * np.sqrt(0.5)
+    reach = RAY_RANGE + half_diagonal
     centres = cells_near(seg_a, seg_b, reach)
-    lists: list[np.ndarray] = []
-    for start in range(0, len(centres), 256):  # chunks bound the [cells, segments] memory
-        chunk = centres[start : start + 256]
-        dist = point_segment_distance(chunk[:, None, :], seg_a[None], seg_b[None])
-        lists.extend(np.flatnonzero(row) for row in dist <= reach)
-    keys = cell_key(centres)
-    order = [i for i in np.argsort(keys) if len(lists[i])]
-    start = np.concatenate([[0], np.cumsum([len(lists[i]) for i in order])]).astype(np.int64)
-    return keys[order], start, np.concatenate([lists[i] for i in order]).astype(np.int64)
+    sector_width = 2 * np.pi / HEADING_SECTORS
+    keys, segments = [], []
+    chunk_size = max(1, min(256, 2_000_000 // len(seg_a)))  # bounds the [cells, segments] memory
+    for first in range(0, len(centres), chunk_size):
+        chunk = centres[first : first + chunk_size]
+        near = point_segment_distance(chunk[:, None, :], seg_a[None], seg_b[None]) <= reach
+        cell, seg = np.nonzero(near)
+        ends = [end[seg] - chunk[cell] for end in (seg_a, seg_b)]
+        for k in range(HEADING_SECTORS):
+            ahead = np.zeros(len(seg), bool)
+            for v in ends:
+                off = np.abs(wrap_angle(np.arctan2(v[:, 1], v[:, 0]) - k * sector_width))
+                # the most ahead this end can be for headings in the sector, measured from the centre
+                best = np.hypot(v[:, 0], v[:, 1]) * np.cos(np.maximum(off - sector_width / 2, 0.0))
+                ahead |= best > -half_diagonal - 1e-6
+            keys.append(cell_key(chunk[cell[ahead]]) * HEADING_SECTORS + k)
+            segments.append(seg[ahead])
+    key, segment = np.concatenate(keys), np.concatenate(segments)
+    order = np.lexsort((segment, key))
+    key, segment = key[order], segment[order]
+    unique, start = np.unique(key, return_index=True)
+    return unique, np.append(start, len(key)).astype(np.int64), segment.astype(np.int64)
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Angles mapped to [-pi, pi)."""
+    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 def cells_near(seg_a: np.ndarray, seg_b: np.ndarray, reach: float) -> np.ndarray:

@@ -9,6 +9,7 @@ from behaviors.geometry import RAY_RANGE, build_geometry, load_geometry
 from behaviors.sensors import (
     OBS_SIZE,
     OBS_SIZE_WITH_ID,
+    PARALLEL_AGENTS,
     SLICES,
     TRACK_RAY_ANGLES,
     AgentFrame,
@@ -196,13 +197,28 @@ def test_track_rays_match_brute_force_on_the_ring():
     np.testing.assert_allclose(track_rays(origin, heading, geometry), expected, atol=0.02)
 
 
+def test_a_big_fleet_gets_the_same_observations_as_the_ray_casts_alone():
+    """From PARALLEL_AGENTS on, track rays run on a worker thread: same numbers, same rows."""
+    geometry = load_geometry(get_scenario("ring").net)
+    rng = np.random.default_rng(5)
+    origin, heading = random_ring_poses(geometry, rng, 320)
+    n = len(origin)
+    assert n >= PARALLEL_AGENTS
+    agents = AgentFrame(origin, heading, rng.normal(0, 0.1, n), rng.uniform(0, 30, n), rng.uniform(-1, 1, n))
+    obs = observe(agents, origin, np.arange(n), geometry)
+    expected_track = (track_rays(origin, heading, geometry) / RAY_RANGE).astype(np.float32)
+    np.testing.assert_array_equal(obs[:, SLICES["track"]], expected_track)
+    expected_opponents = (opponent_rays(origin, heading, origin, np.arange(n)) / RAY_RANGE).astype(np.float32)
+    np.testing.assert_array_equal(obs[:, SLICES["opponents"]], expected_opponents)
+
+
 def brute_force_opponent_rays(origin, heading, others, self_rows):
     """Per agent, per vehicle: the sector formula written out plainly."""
     out = np.full((len(origin), 36), RAY_RANGE)
     for i in range(len(origin)):
         for j in range(len(others)):
             d = others[j] - origin[i]
-            dist = np.hypot(d[0], d[1])
+            dist = np.sqrt(d[0] * d[0] + d[1] * d[1])
             if j == self_rows[i] or not dist < RAY_RANGE:
                 continue
             bearing = (np.arctan2(d[1], d[0]) - heading[i] + np.pi) % (2 * np.pi) - np.pi
@@ -222,14 +238,16 @@ def test_opponent_rays_are_exactly_the_brute_force_ones(agents):
     np.testing.assert_array_equal(opponent_rays(others[rows], heading, others, rows), expected)
 
 
-def test_neighbour_pairs_are_the_same_with_and_without_the_grid():
+@pytest.mark.parametrize("extent", [5000.0, 3.0e6])  # cells of radius / 2, and cells capped in number
+def test_neighbour_pairs_are_the_same_with_and_without_the_grid(extent):
     rng = np.random.default_rng(7)
-    points = rng.uniform(-5000, 5000, size=(800, 2))
-    query = rng.uniform(-5000, 5000, size=(400, 2))
+    points = rng.uniform(-extent, extent, size=(800, 2))
+    query = rng.uniform(-extent, extent, size=(400, 2))
+    query[:200] = points[:200] + rng.normal(0.0, 150.0, size=(200, 2))  # pairs even on the huge map
     q, m = neighbour_pairs(query, points, 300.0)  # 320k combinations: the grid
     d = np.linalg.norm(points[None] - query[:, None], axis=2)
     eq, em = np.nonzero(d < 300.0)
-    assert len(q) == len(eq)
+    assert len(eq) > 150 and len(q) == len(eq)
     assert set(zip(q.tolist(), m.tolist(), strict=True)) == set(zip(eq.tolist(), em.tolist(), strict=True))
 
 
