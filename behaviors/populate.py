@@ -36,7 +36,7 @@ from behaviors.export import FCD_SUFFIXES, fcd_options
 from behaviors.files import ensure_writable_dir
 from behaviors.geometry import RoadGeometry, load_geometry
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID
-from behaviors.sim import SimOptions, SumoSim
+from behaviors.sim import SimOptions, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
 from sumo_scenarios import get_scenario
 
@@ -86,6 +86,11 @@ class RouteGraph:
     lanes: np.ndarray  # [E]
     successors: list[list[int]]
 
+    @property
+    def start_cdf(self) -> np.ndarray:
+        """Cumulative lane-metres: routes start on an edge with probability proportional to them."""
+        return np.cumsum(self.length * self.lanes)
+
 
 def route_graph(geometry: RoadGeometry, net_file: Path) -> RouteGraph:
     import sumolib
@@ -106,13 +111,14 @@ def route_graph(geometry: RoadGeometry, net_file: Path) -> RouteGraph:
     )
 
 
-def random_route(graph: RouteGraph, rng: np.random.Generator, min_length: float) -> list[str]:
+def random_route(
+    graph: RouteGraph, start_cdf: np.ndarray, rng: np.random.Generator, min_length: float
+) -> list[str]:
     """A walk along multi-lane edges from a start drawn by lane-metres, until long enough or a dead end."""
-    weight = graph.length * graph.lanes
-    k = int(rng.choice(len(graph.edges), p=weight / weight.sum()))
+    k = int(np.searchsorted(start_cdf, rng.random() * start_cdf[-1], side="right"))
     route, length = [k], graph.length[k]
     while length < min_length and graph.successors[k]:
-        k = int(rng.choice(graph.successors[k]))
+        k = graph.successors[k][int(rng.integers(len(graph.successors[k])))]
         route.append(k)
         length += graph.length[k]
     return [graph.edges[i] for i in route]
@@ -159,6 +165,7 @@ class Population:
         self.config = config
         self.geometry = load_geometry(config.net)
         self.graph = route_graph(self.geometry, config.net)
+        self.start_cdf = self.graph.start_cdf
         self._check_capacity()
         self.policy, self.with_id = load_policy(config)
         self.rng = np.random.default_rng(config.seed)
@@ -168,6 +175,7 @@ class Population:
         self.counter = {"keeper": 0, "overtaker": 0, "background": 0}
         self.pending: dict[str, str] = {}  # vehicle id -> kind, added but not yet on the road
         self.background_ids: set[str] = set()
+        self.vehicles: VehicleState | None = None  # read after each step, used to sense in the next
         self.sim: SumoSim | None = None
 
     def _check_capacity(self) -> None:
@@ -201,14 +209,14 @@ class Population:
         for _ in range(count):
             vid = f"{kind}_{self.counter[kind]}"
             self.counter[kind] += 1
-            edges = random_route(self.graph, self.rng, self.config.duration * 50.0)
+            edges = random_route(self.graph, self.start_cdf, self.rng, self.config.duration * 50.0)
             sim.add_route(f"route_{vid}", edges)
             sim.add_free_vehicle(vid, f"route_{vid}", vtype)
             if kind != "background":
                 sim.take_control([vid])
             self.pending[vid] = kind
 
-    def _admit(self, present: set[str]) -> None:
+    def _admit(self, present: dict[str, int]) -> None:
         """Pending vehicles that SUMO placed join; the others are withdrawn and retried."""
         sim = self.sim
         assert sim is not None
@@ -229,13 +237,13 @@ class Population:
                 self.insert(kind, kinds.count(kind))
 
     def step(self) -> None:
+        """Sense, act, let SUMO step, then take stock: the one read of SUMO serves the next step too."""
         sim, fleet, c = self.sim, self.fleet, self.config
         assert sim is not None
         off_track = np.zeros(len(fleet), bool)
         if len(fleet):
-            with self.timer.phase("read"):
-                vehicles = sim.read_vehicles(with_distance=False)  # no race here: positions suffice
-            obs = fleet.sense(sim, vehicles, self.with_id)
+            assert self.vehicles is not None
+            obs = fleet.sense(sim, self.vehicles, self.with_id)
             with self.timer.phase("policy"):
                 actions = self.policy(obs)
             off_track = fleet.act(sim, actions).off_track
@@ -244,24 +252,25 @@ class Population:
             sim.step()
         with self.timer.phase("read"):
             contact = sim.collisions()
-            present = set(sim.vehicle_ids())
-        ids = np.array(fleet.ids, dtype=object)
+            arrived = sim.arrived()
+            vehicles = sim.read_vehicles(with_distance=False)  # no race here: positions suffice
         crashed = np.array([v in contact for v in fleet.ids], bool) if contact else np.zeros(len(fleet), bool)
-        gone = np.array([v not in present for v in fleet.ids], bool)
+        gone = np.array([v not in vehicles.row for v in fleet.ids], bool)
         leaving = crashed | off_track | gone
         self.summary.collisions += int(crashed.sum())
         self.summary.off_tracks += int((off_track & ~crashed).sum())
         self.summary.agent_steps += len(fleet)
-        wrecked_background = sorted(v for v in self.background_ids if v in contact)
-        removed = [str(v) for v in ids[leaving & ~gone]] + wrecked_background
+        left = [fleet.ids[k] for k in np.flatnonzero(leaving)]
+        wrecked_background = sorted(v for v in contact if v in self.background_ids)
+        removed = [fleet.ids[k] for k in np.flatnonzero(leaving & ~gone)] + wrecked_background
         sim.remove(removed)
-        present.difference_update(removed)
+        self.vehicles = vehicles.without(removed)
         fleet.keep(~leaving)
-        left_background = {v for v in self.background_ids if v not in present}
+        # background cars leave at the end of their route, or wrecked
+        left_background = {v for v in arrived if v in self.background_ids}.union(wrecked_background)
         self.background_ids -= left_background
-        self._admit(present)
+        self._admit(self.vehicles.row)
         if c.keep_count:
-            left = [str(v) for v in ids[leaving]]
             for kind in ("keeper", "overtaker"):
                 self.insert(kind, sum(v.startswith(kind) for v in left))
             self.insert("background", len(left_background))
@@ -277,6 +286,11 @@ class Population:
         if self.sim is not None:
             self.sim.close()
             self.sim = None
+
+
+POLICY_THREADS = 2
+"""Threads for the batched actor call. SUMO never steps during it (one process, one step at a
+time), so a second thread halves it where a second core exists (1,000 agents: 1.6 -> 0.8 ms)."""
 
 
 def load_policy(config: PopulateConfig) -> tuple[Callable[[np.ndarray], np.ndarray], bool]:
@@ -342,7 +356,7 @@ def populate(config: PopulateConfig, on_step: Callable[[float], None] | None = N
     """Run the whole simulation; the FCD file appears only if the run completed."""
     config.validate()
     ensure_writable_dir(config.fcd.parent)
-    torch.set_num_threads(1)
+    torch.set_num_threads(POLICY_THREADS)
     population = Population(config)
     partial = partial_path(config.fcd)
     start = time.perf_counter()

@@ -78,6 +78,17 @@ class VehicleState:
     distance: np.ndarray  # [M] odometer since insertion, metres (empty if not read)
     row: dict[str, int]
 
+    def without(self, removed: list[str]) -> VehicleState:
+        """The same state minus vehicles removed since it was read (so nobody senses a removed car)."""
+        rows = [self.row[v] for v in removed if v in self.row]
+        if not rows:
+            return self
+        keep = np.ones(len(self.ids), bool)
+        keep[rows] = False
+        ids = [v for v, k in zip(self.ids, keep.tolist(), strict=True) if k]
+        distance = self.distance[keep] if len(self.distance) else self.distance
+        return VehicleState(ids, self.position[keep], distance, {v: k for k, v in enumerate(ids)})
+
 
 @dataclass(frozen=True)
 class AgentReadings:

@@ -32,7 +32,7 @@ import torch
 from common import print_table, progress, write_csv
 from rich.console import Console
 
-from behaviors.populate import PRETRAINED, PopulateConfig, Population, partial_path
+from behaviors.populate import POLICY_THREADS, PRETRAINED, PopulateConfig, Population, partial_path
 from behaviors.sim import SimOptions, SumoSim
 from sumo_scenarios import get_scenario
 from sumo_scenarios.build import build_straight
@@ -317,7 +317,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
-    torch.set_num_threads(1)  # as `behave populate` does
+    torch.set_num_threads(POLICY_THREADS)  # as `behave populate` does
     console = Console(width=max(Console().width, 200))
     results = []
     with tempfile.TemporaryDirectory(prefix="behave_bench_populate_") as tmp_name:
