@@ -75,6 +75,7 @@ class Fleet:
         self.behaviour_id = np.zeros(0, np.float32)
         self.frame: RoadFrame | None = None
         self.vehicle_rows = np.zeros(0, np.int64)  # each agent's row in the last VehicleState sensed
+        self._located: tuple[dict[str, int], list[str], np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -96,11 +97,27 @@ class Fleet:
         if self.frame is not None:
             self.frame = RoadFrame(*(getattr(self.frame, f.name)[mask] for f in fields(RoadFrame)))
 
+    def locate(self, vehicles: VehicleState) -> np.ndarray:
+        """Each agent's row in `vehicles`, -1 for agents SUMO no longer has.
+
+        Remembered while neither the vehicles' rows nor the agents change (most steps),
+        so a big fleet is looked up once, not once per step.
+        """
+        last = self._located
+        if last is not None and last[0] is vehicles.row and last[1] is self.ids:
+            return last[2]
+        get = vehicles.row.get
+        rows = np.array([get(vid, -1) for vid in self.ids], np.int64)
+        self._located = (vehicles.row, self.ids, rows)
+        return rows
+
     def sense(self, sim: SumoSim, vehicles: VehicleState, with_id: bool) -> np.ndarray:
         """Read the agents' lanes from SUMO and return their observations [N, 65 or 66]."""
         with self.timer.phase("read"):
             readings = sim.read_agents(self.ids)
-            rows = np.array([vehicles.row[vid] for vid in self.ids], np.int64)
+            rows = self.locate(vehicles)
+            if (rows < 0).any():
+                raise RuntimeError("Fleet.sense with agents SUMO no longer has: keep() them out first")
             self.vehicle_rows = rows
         with self.timer.phase("sensors"):
             return self._observe(readings, vehicles, rows, with_id)

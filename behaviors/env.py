@@ -253,7 +253,7 @@ class BehaveEnv(ParallelEnv):
         with self.timer.phase("read"):
             contact = sim.collisions()
             vehicles = sim.read_vehicles()
-        present = np.array([vid in vehicles.row for vid in fleet.ids], bool)
+        present = fleet.locate(vehicles) >= 0
         next_obs = last_obs.copy()  # an agent that left keeps its last observation
         if not present.all():
             fleet.keep(present)

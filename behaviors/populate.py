@@ -255,7 +255,7 @@ class Population:
             arrived = sim.arrived()
             vehicles = sim.read_vehicles(with_distance=False)  # no race here: positions suffice
         crashed = np.array([v in contact for v in fleet.ids], bool) if contact else np.zeros(len(fleet), bool)
-        gone = np.array([v not in vehicles.row for v in fleet.ids], bool)
+        gone = fleet.locate(vehicles) < 0
         leaving = crashed | off_track | gone
         self.summary.collisions += int(crashed.sum())
         self.summary.off_tracks += int((off_track & ~crashed).sum())

@@ -73,10 +73,10 @@ class SimOptions:
 class VehicleState:
     """Every vehicle in the simulation after a step; row order = `ids`."""
 
-    ids: list[str]
+    ids: tuple[str, ...]
     position: np.ndarray  # [M, 2] front bumper centre (SUMO's vehicle position), metres
     distance: np.ndarray  # [M] odometer since insertion, metres (empty if not read)
-    row: dict[str, int]
+    row: dict[str, int]  # id -> row; shared by consecutive states with the same ids: never mutate
 
     def without(self, removed: list[str]) -> VehicleState:
         """The same state minus vehicles removed since it was read (so nobody senses a removed car)."""
@@ -85,7 +85,7 @@ class VehicleState:
             return self
         keep = np.ones(len(self.ids), bool)
         keep[rows] = False
-        ids = [v for v, k in zip(self.ids, keep.tolist(), strict=True) if k]
+        ids = tuple(v for v, k in zip(self.ids, keep.tolist(), strict=True) if k)
         distance = self.distance[keep] if len(self.distance) else self.distance
         return VehicleState(ids, self.position[keep], distance, {v: k for k, v in enumerate(ids)})
 
@@ -113,6 +113,7 @@ class SumoSim:
         except Exception as exc:  # libsumo raises its own TraCIException/FatalSumoError types
             raise BehaveError(f"SUMO could not start: {_one_line(exc)}") from None
         self.step_length = options.step_length
+        self._last = VehicleState((), np.zeros((0, 2)), np.zeros(0), {})
 
     def __enter__(self) -> SumoSim:
         return self
@@ -140,11 +141,15 @@ class SumoSim:
     def read_vehicles(self, with_distance: bool = True) -> VehicleState:
         """Position (and odometer) of every vehicle: the one per-step read of the whole fleet."""
         v = self._fast
-        ids = list(self._sumo.vehicle.getIDList())
-        get_pos, get_dist = v.getPosition, v.getDistance
-        position = np.array([get_pos(i) for i in ids], float).reshape(-1, 2)
-        distance = np.array([get_dist(i) for i in ids] if with_distance else [], float)
-        return VehicleState(ids, position, distance, {vid: k for k, vid in enumerate(ids)})
+        ids = self._sumo.vehicle.getIDList()
+        if ids == self._last.ids:  # nobody came or left: the same row numbers (and dict) hold
+            ids, row = self._last.ids, self._last.row
+        else:
+            row = {vid: k for k, vid in enumerate(ids)}
+        position = np.array(list(map(v.getPosition, ids)), float).reshape(-1, 2)
+        distance = np.fromiter(map(v.getDistance, ids), float, len(ids)) if with_distance else np.zeros(0)
+        self._last = VehicleState(ids, position, distance, row)
+        return self._last
 
     def read_agents(self, ids: Sequence[str]) -> AgentReadings:
         """Lane, lane position and lateral offset of the controlled vehicles."""
