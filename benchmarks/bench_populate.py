@@ -13,7 +13,7 @@ Each run warms up (all vehicles inserted) before timing. The network is a long s
 highway built into a temp dir with the project's own builder (the bundled one holds ~600 cars).
 
 Usage: python benchmarks/bench_populate.py [--rows 100:100,1000:200] [--steps 200] [--seed 0]
-                                           [--rounds 1] [--length 30000] [--csv PATH] [--profile]
+                                           [--rounds 3] [--length 30000] [--csv PATH] [--profile]
 """
 
 from __future__ import annotations
@@ -299,7 +299,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--rows", default="100:100,1000:200", help="comma-separated AGENTS:BACKGROUND")
     parser.add_argument("--steps", type=int, default=200, help="timed steps per run")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--rounds", type=int, default=1, help="populate / SUMO-alone alternations")
+    parser.add_argument("--rounds", type=int, default=3, help="populate / SUMO-alone alternations")
     parser.add_argument("--length", type=float, default=30_000.0, help="highway length, metres")
     parser.add_argument("--csv", type=Path, default=None, help="also write the table here")
     parser.add_argument("--profile", action="store_true", help="cProfile top-10 (tottime) of the largest row")
