@@ -85,11 +85,7 @@ class RouteGraph:
     length: np.ndarray  # [E] metres
     lanes: np.ndarray  # [E]
     successors: list[list[int]]
-
-    @property
-    def start_cdf(self) -> np.ndarray:
-        """Cumulative lane-metres: routes start on an edge with probability proportional to them."""
-        return np.cumsum(self.length * self.lanes)
+    start_cdf: np.ndarray  # [E] cumulative lane-metres: a route starts on an edge in proportion to them
 
 
 def route_graph(geometry: RoadGeometry, net_file: Path) -> RouteGraph:
@@ -103,19 +99,20 @@ def route_graph(geometry: RoadGeometry, net_file: Path) -> RouteGraph:
     ]
     index = {e.getID(): k for k, e in enumerate(edges)}
     successors = [sorted({index[s.getID()] for s in e.getOutgoing() if s.getID() in index}) for e in edges]
+    length = np.array([geometry.edges[e.getID()].length for e in edges])
+    lanes = np.array([e.getLaneNumber() for e in edges])
     return RouteGraph(
         edges=[e.getID() for e in edges],
-        length=np.array([geometry.edges[e.getID()].length for e in edges]),
-        lanes=np.array([e.getLaneNumber() for e in edges]),
+        length=length,
+        lanes=lanes,
         successors=successors,
+        start_cdf=np.cumsum(length * lanes),
     )
 
 
-def random_route(
-    graph: RouteGraph, start_cdf: np.ndarray, rng: np.random.Generator, min_length: float
-) -> list[str]:
+def random_route(graph: RouteGraph, rng: np.random.Generator, min_length: float) -> list[str]:
     """A walk along multi-lane edges from a start drawn by lane-metres, until long enough or a dead end."""
-    k = int(np.searchsorted(start_cdf, rng.random() * start_cdf[-1], side="right"))
+    k = int(np.searchsorted(graph.start_cdf, rng.random() * graph.start_cdf[-1], side="right"))
     route, length = [k], graph.length[k]
     while length < min_length and graph.successors[k]:
         k = graph.successors[k][int(rng.integers(len(graph.successors[k])))]
@@ -165,7 +162,6 @@ class Population:
         self.config = config
         self.geometry = load_geometry(config.net)
         self.graph = route_graph(self.geometry, config.net)
-        self.start_cdf = self.graph.start_cdf
         self._check_capacity()
         self.policy, self.with_id = load_policy(config)
         self.rng = np.random.default_rng(config.seed)
@@ -209,7 +205,7 @@ class Population:
         for _ in range(count):
             vid = f"{kind}_{self.counter[kind]}"
             self.counter[kind] += 1
-            edges = random_route(self.graph, self.start_cdf, self.rng, self.config.duration * 50.0)
+            edges = random_route(self.graph, self.rng, self.config.duration * 50.0)
             sim.add_route(f"route_{vid}", edges)
             sim.add_free_vehicle(vid, f"route_{vid}", vtype)
             if kind != "background":
