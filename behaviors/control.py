@@ -111,6 +111,14 @@ class Fleet:
         self._located = (vehicles.row, self.ids, rows)
         return rows
 
+    def involved(self, vehicles: VehicleState, names: set[str]) -> np.ndarray:
+        """Which agents are among `names` (e.g. this step's collisions), matched through their rows
+        in `vehicles`, so the cost follows the few names, not the size of the fleet."""
+        hit = [vehicles.row[v] for v in names if v in vehicles.row]
+        if not hit:
+            return np.zeros(len(self.ids), bool)
+        return np.isin(self.locate(vehicles), hit)
+
     def sense(self, sim: SumoSim, vehicles: VehicleState, with_id: bool) -> np.ndarray:
         """Read the agents' lanes from SUMO and return their observations [N, 65 or 66]."""
         with self.timer.phase("read"):

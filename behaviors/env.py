@@ -268,9 +268,8 @@ class BehaveEnv(ParallelEnv):
             )
         else:
             speed, angle, off_track = actuation.speed, actuation.angle, actuation.off_track & present
-        collided = (
-            np.array([vid in contact for vid in self.agents], bool) if contact else np.zeros(len(slots), bool)
-        )
+        collided = np.zeros(len(slots), bool)
+        collided[present] = fleet.involved(vehicles, contact)
         no_progress = (self._slow_time(present) >= NO_PROGRESS_SECONDS) & present
         race = race_positions(self.progress)[slots]
         terms = step_rewards(

@@ -250,7 +250,7 @@ class Population:
             contact = sim.collisions()
             arrived = sim.arrived()
             vehicles = sim.read_vehicles(with_distance=False)  # no race here: positions suffice
-        crashed = np.array([v in contact for v in fleet.ids], bool) if contact else np.zeros(len(fleet), bool)
+        crashed = fleet.involved(vehicles, contact)
         gone = fleet.locate(vehicles) < 0
         leaving = crashed | off_track | gone
         self.summary.collisions += int(crashed.sum())
