@@ -32,6 +32,7 @@ class RoadFrame:
     curvature: np.ndarray  # [N] 1/m, positive = road turns left
     speed_limit: np.ndarray  # [N] m/s
     on_normal_edge: np.ndarray  # [N] bool, False inside junctions
+    lane_deviation: np.ndarray  # [N] |offset from the lane centre| / half the lane width, 1 = on a line
 
 
 def road_frame(
@@ -57,6 +58,7 @@ def road_frame(
         curvature=curvature,
         speed_limit=geometry.lane_speed[rows],
         on_normal_edge=geometry.lane_normal[rows],
+        lane_deviation=np.abs(readings.lateral_pos) / (width / 2),
     )
 
 

@@ -62,6 +62,7 @@ class EnvConfig:
     start_speed: float | None = None  # m/s for every car at the start; None: drawn per episode
     seed: int | None = None
     sumo_drives: bool = False  # reference baseline: SUMO's Krauss + SL2015 drive the "agents"
+    lane_weight: float = 0.0  # lane-discipline reward term (0 = the paper's reward), see rewards.py
     car: CarModel = field(default_factory=CarModel)
 
     def validate(self) -> None:
@@ -86,6 +87,8 @@ class EnvConfig:
             raise BehaveError(f"start speed must be >= 0, got {self.start_speed}")
         if (self.opponents or 0) < 0:
             raise BehaveError(f"opponents must be >= 0, got {self.opponents}")
+        if self.lane_weight < 0:
+            raise BehaveError(f"lane weight must be >= 0, got {self.lane_weight}")
 
     @property
     def n_agents(self) -> int:
@@ -152,6 +155,7 @@ class StepBatch:
     off_track: np.ndarray
     no_progress: np.ndarray
     speed: np.ndarray  # [n] m/s after the step
+    lane_deviation: np.ndarray  # [n] |offset from the lane centre| / half the lane width (0 for leavers)
 
 
 class BehaveEnv(ParallelEnv):
@@ -272,6 +276,9 @@ class BehaveEnv(ParallelEnv):
         collided[present] = fleet.involved(vehicles, contact)
         no_progress = (self._slow_time(present) >= NO_PROGRESS_SECONDS) & present
         race = race_positions(self.progress)[slots]
+        lane_deviation = np.zeros(len(slots))
+        if fleet.frame is not None and present.any():
+            lane_deviation[present] = fleet.frame.lane_deviation
         terms = step_rewards(
             speed,
             angle,
@@ -281,6 +288,8 @@ class BehaveEnv(ParallelEnv):
             collided,
             off_track,
             no_progress,
+            lane_deviation,
+            self.config.lane_weight,
         )
         terminated = collided | off_track | no_progress
         truncated = ~terminated & (~present | (self.steps >= self.config.max_steps))
@@ -297,6 +306,7 @@ class BehaveEnv(ParallelEnv):
             off_track,
             no_progress,
             speed,
+            lane_deviation,
         )
 
     # --- internals --------------------------------------------------------------------
@@ -505,6 +515,7 @@ def make_env(
     max_steps: int = 1000,
     step_length: float = 0.2,
     start_speed: float | None = None,
+    lane_weight: float = 0.0,
 ) -> BehaveEnv:
     """A native PettingZoo ParallelEnv with a batched array interface for trainers."""
     return BehaveEnv(
@@ -520,5 +531,6 @@ def make_env(
             max_steps=max_steps,
             step_length=step_length,
             start_speed=start_speed,
+            lane_weight=lane_weight,
         )
     )

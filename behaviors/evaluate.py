@@ -197,6 +197,7 @@ def markdown_table(results: pd.DataFrame) -> str:
         "reward_sum",
         "off_tracks",
         "mean_speed_frac",
+        "lane_deviation",
     ]
     columns += [c for c in ("overtakes_per_agent", "passed_frac", "overtaker_speed_frac", "keeper_speed_frac")
                 if c in results]  # fmt: skip

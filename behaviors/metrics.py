@@ -31,6 +31,7 @@ class EpisodeStats:
     no_progress: int = 0
     speed_sum: np.ndarray = field(init=False)  # per agent slot, like the arrays below
     speed_steps: np.ndarray = field(init=False)
+    lane_deviation_sum: float = 0.0
     reward: np.ndarray = field(init=False)
     progress: np.ndarray = field(init=False)
     collided: np.ndarray = field(init=False)
@@ -51,6 +52,7 @@ class EpisodeStats:
         np.add.at(self.progress, slots, batch.terms.progress)
         np.add.at(self.speed_sum, slots, batch.speed)
         np.add.at(self.speed_steps, slots, 1)
+        self.lane_deviation_sum += float(batch.lane_deviation.sum())
 
 
 def summary(stats: EpisodeStats, speed_limit: float, passed: float | None = None) -> dict[str, Any]:
@@ -67,6 +69,7 @@ def summary(stats: EpisodeStats, speed_limit: float, passed: float | None = None
         "off_tracks": stats.off_tracks,
         "no_progress": stats.no_progress,
         "mean_speed_frac": float(stats.speed_sum.sum() / max(stats.speed_steps.sum(), 1) / speed_limit),
+        "lane_deviation": stats.lane_deviation_sum / max(stats.speed_steps.sum(), 1),
     }
     for name, flag in (("overtaker", 1.0), ("keeper", 0.0)):
         mask = stats.behaviour_id == flag

@@ -58,6 +58,7 @@ class TrainConfig:
     step_length: float = 0.2
     seed: int = 0
     updates_per_step: int | None = None  # None: one per live agent (the paper)
+    lane_weight: float = 0.0  # lane-discipline reward term; 0 = the paper's reward
     # learner settings: the defaults are DDPGConfig's, named alike (one source of truth)
     hidden: tuple[int, ...] = _LEARNER.hidden
     batch_size: int = _LEARNER.batch_size
@@ -100,6 +101,7 @@ class TrainConfig:
             max_steps=self.max_steps,
             step_length=self.step_length,
             seed=self.seed,
+            lane_weight=self.lane_weight,
         )
 
     def ddpg_config(self) -> DDPGConfig:

@@ -24,11 +24,16 @@ from behaviors.files import atomic_write_text
 from behaviors.metrics import mean_rows
 
 PRETRAINED = Path(__file__).resolve().parents[1] / "behaviors" / "pretrained"
+LANE_WEIGHT = 0.5
+"""Lane-discipline reward for the bundled policies: cars that hold lane centres. With the paper's
+reward alone, cars held places astride lane lines, which made SUMO's own step 5-18% slower
+around 1,000 of them (docs/benchmarks.md)."""
 
 
 def train_command(name: str, args: list[str], runs: Path, seed: int, minutes: float) -> list[str]:
     return [sys.executable, "-m", "cli", "train", *args, "--seed", str(seed), "--out", str(runs / name),
-            "--max-minutes", str(minutes), "--episodes", "2000", "--checkpoint-every", "10"]  # fmt: skip
+            "--max-minutes", str(minutes), "--episodes", "2000", "--checkpoint-every", "10",
+            "--lane-weight", str(LANE_WEIGHT)]  # fmt: skip
 
 
 def run_parallel(commands: list[list[str]]) -> list[float]:
@@ -80,7 +85,8 @@ def card_section(title: str, cmd: list[str], seed: int, wall: float, out: Path, 
         f"- evaluation ({m['episodes']:.0f} episodes, no exploration): "
         f"{m['colliding_steps_pct']:.2f}% colliding steps, {m['off_tracks']:.2f} off-tracks and "
         f"{m['collisions']:.2f} collisions per episode, "
-        f"mean speed {100 * m['mean_speed_frac']:.1f}% of the limit",
+        f"mean speed {100 * m['mean_speed_frac']:.1f}% of the limit, mean offset from the lane "
+        f"centre {m['lane_deviation']:.2f} of half a lane width (0 = centred, 1 = on a lane line)",
     ]
     for name in ("overtaker", "keeper"):
         if f"{name}_speed_frac" in m:

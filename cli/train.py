@@ -49,6 +49,9 @@ def train(
     explore_decay_steps: Annotated[
         int, typer.Option(help="env steps over which exploration noise decays to 0")
     ] = DEFAULTS.explore_decay_steps,
+    lane_weight: Annotated[
+        float, typer.Option(help="lane-discipline reward weight (0 = the paper's reward)")
+    ] = DEFAULTS.lane_weight,
     checkpoint_every: Annotated[int, typer.Option(help="episodes between numbered checkpoints")] = 10,
     max_minutes: Annotated[
         float | None, typer.Option(help="wall-clock budget; stops after that episode")
@@ -61,7 +64,7 @@ def train(
         step_length=step_length, seed=seed, scenario=scenario, init=str(init) if init else None,
         updates_per_step=updates_per_step, batched_updates=batched_updates, hidden=parse_sizes(hidden),
         batch_size=batch_size, reward_scale=reward_scale, explore_decay_steps=explore_decay_steps,
-        checkpoint_every=checkpoint_every, max_minutes=max_minutes,
+        checkpoint_every=checkpoint_every, max_minutes=max_minutes, lane_weight=lane_weight,
     )  # fmt: skip
     run_dir = resume or out or Path("runs") / f"{behaviour}-{algo}-s{seed}"
     trainer = prepare_run(config, run_dir, resume=resume is not None, episodes=episodes)

@@ -290,3 +290,19 @@ def test_vehicle_state_without_removed_cars_drops_exactly_their_rows():
     assert left.ids == ("a", "c", "d") and left.row == {"a": 0, "c": 1, "d": 2}
     np.testing.assert_array_equal(left.position, position[[0, 2, 3]])
     np.testing.assert_array_equal(left.distance, [0.0, 2.0, 3.0])
+
+
+def test_the_lane_term_measures_the_offset_from_the_lane_centre_sumo_reports():
+    env = make_env("tiny", agents=1, seed=3, max_steps=400, start_speed=15.0, lane_weight=0.5)
+    try:
+        env.reset_arrays(3)
+        batch = drive(env, lambda o: np.array([[0.3, 0.3, 0.0]]), 3)  # drift left, off the lane centre
+        vid = env.agents[0]
+        lateral = env.sim._sumo.vehicle.getLateralLanePosition(vid)
+        width = env.sim._sumo.lane.getWidth(env.sim._sumo.vehicle.getLaneID(vid))
+        assert abs(lateral) > 0.1
+        expected = -0.5 * batch.speed[0] * 3.6 * abs(lateral) / (width / 2)
+        assert batch.terms.lane[0] == pytest.approx(expected, rel=1e-9)
+        assert batch.reward[0] == pytest.approx(sum(v[0] for v in batch.terms.as_dict().values()))
+    finally:
+        env.close()

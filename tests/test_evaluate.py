@@ -19,24 +19,24 @@ from behaviors.rewards import RewardTerms
 from cli.main import app
 
 
-def step(slots, collided, speed=20.0, reward=10.0, off_track=None) -> StepBatch:
+def step(slots, collided, speed=20.0, reward=10.0, off_track=None, lane_deviation=0.0) -> StepBatch:
     n = len(slots)
     zeros = np.zeros(n)
-    terms = RewardTerms(np.full(n, reward), zeros, zeros, zeros, zeros)
+    terms = RewardTerms(np.full(n, reward), zeros, zeros, zeros, zeros, zeros)
     off = np.zeros(n, bool) if off_track is None else np.asarray(off_track)
     collided = np.asarray(collided)
     no = np.zeros(n, bool)
     obs = np.zeros((n, 65))
     return StepBatch(np.asarray(slots), obs, terms.total, terms, collided | off, no, collided, off, no,
-                     np.full(n, speed))  # fmt: skip
+                     np.full(n, speed), np.full(n, lane_deviation))  # fmt: skip
 
 
 def test_metrics_follow_the_paper_on_a_hand_made_episode():
     stats = EpisodeStats(3, np.array([1.0, 0.0, 0.0]))
     stats.record(np.array([0, 1, 2]), step([0, 1, 2], [False, False, False]))
     stats.record(np.array([0, 1, 2]), step([0, 1, 2], [True, True, False]))  # two agents, ONE colliding step
-    stats.record(np.array([2]), step([2], [False], speed=10.0))
-    stats.record(np.array([2]), step([2], [False], off_track=[True]))
+    stats.record(np.array([2]), step([2], [False], speed=10.0, lane_deviation=0.5))
+    stats.record(np.array([2]), step([2], [False], off_track=[True], lane_deviation=0.3))
     row = summary(stats, speed_limit=20.0)
     assert row["colliding_steps_pct"] == pytest.approx(25.0)  # 1 of 4 steps
     assert row["colliding_steps_per_agent"] == pytest.approx(2 / 3)
@@ -45,6 +45,7 @@ def test_metrics_follow_the_paper_on_a_hand_made_episode():
     assert row["reward_per_agent"] == pytest.approx(80.0 / 3)
     assert row["mean_speed_frac"] == pytest.approx((7 * 20 + 10) / 8 / 20)
     assert row["overtaker_speed_frac"] == pytest.approx(1.0)
+    assert row["lane_deviation"] == pytest.approx(0.8 / 8)  # per agent-step
 
 
 @pytest.fixture(scope="module")
