@@ -39,6 +39,8 @@ class Actuation:
     lane_speed: np.ndarray  # [N] speed to command along the lane, m/s
     lateral_move: np.ndarray  # [N] sideways move this step, metres (positive = left)
     off_track: np.ndarray  # [N] bool: the move would have crossed the carriageway border
+    side_cut: np.ndarray  # [N] bool: the sideways move was cut by `side_limit`
+    speed_cut: np.ndarray  # [N] bool: the speed was cut by `speed_cap`
 
 
 def actuate(
@@ -51,17 +53,25 @@ def actuate(
     speed_limit: np.ndarray,
     dt: float,
     car: CarModel,
+    side_limit: np.ndarray | None = None,
+    speed_cap: np.ndarray | None = None,
 ) -> Actuation:
     """One control step for all agents.
 
     `offset` is the car centre's distance from the carriageway centre (positive =
     left), `half_width` half the carriageway width, `curvature` the road axis's
-    curvature (1/m, positive = turning left) at the car.
+    curvature (1/m, positive = turning left) at the car. `side_limit` [N, 2], if given,
+    caps the sideways move to the left and right, `speed_cap` [N] the speed (see shield.py);
+    a car whose sideways move was cut has its heading turned back to match the move it makes.
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
     accel = np.clip(actions[:, 1], 0.0, 1.0)
     brake = np.clip(actions[:, 2], 0.0, 1.0)
     new_speed = np.clip(speed + (car.max_accel * accel - car.max_brake * brake) * dt, 0.0, speed_limit)
+    speed_cut = np.zeros(len(new_speed), bool)
+    if speed_cap is not None:
+        speed_cut = new_speed > speed_cap
+        new_speed = np.where(speed_cut, np.maximum(speed_cap, 0.0), new_speed)
     yaw_rate = steer * np.minimum(
         new_speed * np.tan(car.max_steer) / car.wheelbase,
         car.max_lateral_accel / np.maximum(new_speed, 1.0),
@@ -70,8 +80,16 @@ def actuate(
     new_angle = wrap_angle(angle + (yaw_rate - curvature * along) * dt)
     cap = car.max_lateral_speed * dt
     move = np.clip(new_speed * np.sin(new_angle) * dt, -cap, cap)
+    side_cut = np.zeros(len(move), bool)
+    if side_limit is not None:
+        limited = np.clip(move, -side_limit[:, 1], side_limit[:, 0])
+        side_cut = limited != move
+        travel = np.maximum(new_speed * dt, 1e-9)
+        new_angle = np.where(side_cut, np.arcsin(np.clip(limited / travel, -1.0, 1.0)), new_angle)
+        move = limited
     room = half_width - car.width / 2
     target = offset + move
     off_track = np.abs(target) > room
     move = np.clip(target, -room, room) - offset
-    return Actuation(new_speed, new_angle, np.maximum(new_speed * np.cos(new_angle), 0.0), move, off_track)
+    lane_speed = np.maximum(new_speed * np.cos(new_angle), 0.0)
+    return Actuation(new_speed, new_angle, lane_speed, move, off_track, side_cut, speed_cut)

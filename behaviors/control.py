@@ -17,6 +17,7 @@ from behaviors.actuation import Actuation, CarModel, actuate
 from behaviors.geometry import RoadGeometry
 from behaviors.rewards import NO_PROGRESS_SPEED
 from behaviors.sensors import AgentFrame, observe
+from behaviors.shield import safe_speed, search_reach, side_limits, surroundings
 from behaviors.sim import AgentReadings, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
 
@@ -65,8 +66,14 @@ def road_frame(
 class Fleet:
     """State and stepping of N learned agents (row i = `ids[i]`), vectorised."""
 
-    def __init__(self, geometry: RoadGeometry, car: CarModel, dt: float, timer: PhaseTimer) -> None:
+    def __init__(
+        self, geometry: RoadGeometry, car: CarModel, dt: float, timer: PhaseTimer, shield: bool = False
+    ) -> None:
+        """`shield`: keep agents off the cars beside and ahead of them (populate only, see shield.py)."""
         self.timer = timer
+        self.shield = shield
+        self.side_limit: np.ndarray | None = None  # [N, 2] from the last sensing, when shielded
+        self.speed_cap: np.ndarray | None = None  # [N] from the last sensing, when shielded
         self.geometry = geometry
         self.car = car
         self.dt = dt
@@ -96,6 +103,8 @@ class Fleet:
         self.ids = [vid for vid, k in zip(self.ids, mask, strict=True) if k]
         self.speed, self.angle = self.speed[mask], self.angle[mask]
         self.slow_time, self.behaviour_id = self.slow_time[mask], self.behaviour_id[mask]
+        if self.side_limit is not None and self.speed_cap is not None:
+            self.side_limit, self.speed_cap = self.side_limit[mask], self.speed_cap[mask]
         if self.frame is not None:
             self.frame = RoadFrame(*(getattr(self.frame, f.name)[mask] for f in fields(RoadFrame)))
 
@@ -130,7 +139,32 @@ class Fleet:
                 raise RuntimeError("Fleet.sense with agents SUMO no longer has: keep() them out first")
             self.vehicle_rows = rows
         with self.timer.phase("sensors"):
-            return self._observe(readings, vehicles, rows, with_id)
+            obs = self._observe(readings, vehicles, rows, with_id)
+        if self.shield:
+            with self.timer.phase("shield"):
+                self._shield(sim, vehicles, rows)
+        return obs
+
+    def _shield(self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray) -> None:
+        """Side limits and speed caps for the next action; reads the speed of SUMO cars leading agents."""
+        f = self.frame
+        assert f is not None
+        agent_of = np.full(len(vehicles.ids), -1, np.int64)
+        agent_of[rows] = np.arange(len(rows))
+        reach = search_reach(float(self.speed.max(initial=0.0)), self.dt, self.car)
+        road_axis = f.heading - self.angle  # lanes run along the road, not along a swerving car
+        fronts = vehicles.position
+        around = surroundings(fronts[rows], road_axis, fronts, rows, self.car, reach)
+        leader_speed = np.zeros(len(rows))
+        led = np.flatnonzero(around.leader >= 0)
+        by_agent = agent_of[around.leader[led]]
+        along_road = self.speed * np.cos(self.angle)
+        leader_speed[led[by_agent >= 0]] = along_road[by_agent[by_agent >= 0]]
+        by_sumo = led[by_agent < 0]
+        if len(by_sumo):
+            leader_speed[by_sumo] = sim.read_speeds([vehicles.ids[r] for r in around.leader[by_sumo]])
+        self.side_limit = side_limits(around.side_room)
+        self.speed_cap = safe_speed(around.leader_gap, leader_speed, self.speed, self.dt, self.car)
 
     def _observe(self, readings: AgentReadings, vehicles: VehicleState, rows: np.ndarray, with_id: bool):
         self.frame = road_frame(self.geometry, readings, vehicles.position[rows], self.angle, self.car)
@@ -153,7 +187,7 @@ class Fleet:
         with self.timer.phase("actuation"):
             result = actuate(
                 actions, self.speed, self.angle, f.offset, f.half_width, f.curvature, f.speed_limit,
-                self.dt, self.car,
+                self.dt, self.car, self.side_limit, self.speed_cap,
             )  # fmt: skip
             sim.command_agents(self.ids, result.lane_speed, result.lateral_move)
         self.speed, self.angle = result.speed, result.angle

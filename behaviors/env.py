@@ -63,6 +63,7 @@ class EnvConfig:
     seed: int | None = None
     sumo_drives: bool = False  # reference baseline: SUMO's Krauss + SL2015 drive the "agents"
     lane_weight: float = 0.0  # lane-discipline reward term (0 = the paper's reward), see rewards.py
+    shield: bool = False  # populate's safety shield (shield.py): to evaluate a policy as populate drives it
     car: CarModel = field(default_factory=CarModel)
 
     def validate(self) -> None:
@@ -178,7 +179,7 @@ class BehaveEnv(ParallelEnv):
         self._check_capacity()
         self.sim: SumoSim | None = None
         self.timer = PhaseTimer()
-        self.fleet = Fleet(self.geometry, config.car, config.step_length, self.timer)
+        self.fleet = Fleet(self.geometry, config.car, config.step_length, self.timer, config.shield)
         self.agents: list[str] = []
         self._live_slots = np.zeros(0, np.int64)
         self._rng = np.random.default_rng(config.seed)
@@ -389,7 +390,7 @@ class BehaveEnv(ParallelEnv):
         self._passive_on_road = set(self.passive_ids)
         self.agents = list(agent_ids)
         self._live_slots = np.arange(len(agent_ids))
-        self.fleet = Fleet(self.geometry, cfg.car, cfg.step_length, self.timer)
+        self.fleet = Fleet(self.geometry, cfg.car, cfg.step_length, self.timer, cfg.shield)
         self.fleet.add(agent_ids, np.full(len(agent_ids), speed), self.slot_behaviour)
         self.progress = self.start_progress.copy()
         self._car_row = {vid: k for k, vid in enumerate(vids)}
@@ -516,6 +517,7 @@ def make_env(
     step_length: float = 0.2,
     start_speed: float | None = None,
     lane_weight: float = 0.0,
+    shield: bool = False,
 ) -> BehaveEnv:
     """A native PettingZoo ParallelEnv with a batched array interface for trainers."""
     return BehaveEnv(
@@ -532,5 +534,6 @@ def make_env(
             step_length=step_length,
             start_speed=start_speed,
             lane_weight=lane_weight,
+            shield=shield,
         )
     )

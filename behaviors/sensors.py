@@ -190,7 +190,7 @@ def opponent_rays(
     corner = origin.min(axis=0) if len(others) == 0 else np.minimum(origin.min(axis=0), others.min(axis=0))
     local_origin = (origin - corner).astype(np.float32)
     local_others = (others - corner).astype(np.float32)
-    q, _, dx, dy, square = _neighbours(local_origin, local_others, RAY_RANGE, self_rows)
+    q, _, dx, dy, square = neighbours(local_origin, local_others, RAY_RANGE, self_rows)
     # each neighbour in the car's frame (x ahead, y left): one arctan2 gives the relative bearing
     cos, sin = np.cos(heading).astype(np.float32)[q], np.sin(heading).astype(np.float32)[q]
     bearing = np.arctan2(dy * cos - dx * sin, dx * cos + dy * sin)  # [-pi, pi]
@@ -214,11 +214,11 @@ Neighbours = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 def neighbour_pairs(query: np.ndarray, points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """All (query row, point row) pairs closer than `radius`, sorted by query row."""
-    q, m, _, _, _ = _neighbours(query, points, radius)
+    q, m, _, _, _ = neighbours(query, points, radius)
     return q, m
 
 
-def _neighbours(
+def neighbours(
     query: np.ndarray, points: np.ndarray, radius: float, exclude: np.ndarray | None = None
 ) -> Neighbours:
     """Pairs closer than `radius`, without (i, exclude[i]); brute force when small, else a grid."""

@@ -4,7 +4,7 @@ Every row runs in one process, one after the other (libsumo restarts after close
 1. populate: `Population(config)` with learned agents (half overtakers, half keepers with the
    multi-behaviour policy; keepers only with the lane-keeping one) among `behave_background` cars,
    FCD on (the real use); whole `Population.step()` timed, split into the population timer's
-   phases (read, sensors, policy, actuation, sumo) plus "other" (bookkeeping, insertion);
+   phases (read, sensors, shield, policy, actuation, sumo) plus "other" (bookkeeping, insertion);
 2. SUMO alone: the same net, seed, FCD settings and vehicle count, every car `behave_background`
    and driven by SUMO; only the SUMO step (the "sumo" phase) is timed;
 3. SUMO alone without FCD: as 2 without `--fcd-output`, so the FCD column is what writing FCD
@@ -13,7 +13,8 @@ Each run warms up (all vehicles inserted) before timing. The network is a long s
 highway built into a temp dir with the project's own builder (the bundled one holds ~600 cars).
 
 Usage: python benchmarks/bench_populate.py [--rows 100:100,1000:200] [--steps 200] [--seed 0]
-                                           [--rounds 3] [--length 30000] [--csv PATH] [--profile]
+                                           [--rounds 3] [--length 30000] [--policy CKPT] [--csv PATH]
+                                           [--profile]
 """
 
 from __future__ import annotations
@@ -32,14 +33,16 @@ import torch
 from common import print_table, progress, write_csv
 from rich.console import Console
 
+from behaviors.ddpg.checkpoint import load_checkpoint
 from behaviors.populate import POLICY_THREADS, PRETRAINED, PopulateConfig, Population, partial_path
+from behaviors.sensors import OBS_SIZE_WITH_ID
 from behaviors.sim import SimOptions, SumoSim
 from sumo_scenarios import get_scenario
 from sumo_scenarios.build import build_straight
 
 WARMUP_STEPS = 20
 STEP_LENGTH = 0.2
-PHASES = ("read", "sensors", "policy", "actuation", "sumo")
+PHASES = ("read", "sensors", "shield", "policy", "actuation", "sumo")
 TARGET_RATIO_1000 = 1.3
 MULTI_POLICY = PRETRAINED / "multi.pt"
 LANEKEEPING_POLICY = PRETRAINED / "lanekeeping.pt"
@@ -115,11 +118,17 @@ class NoFcdPopulation(Population):
         self.insert("background", c.background)
 
 
-def pick_policy(agents: int) -> tuple[Path, int, int]:
-    """(checkpoint, overtakers, keepers): half and half with multi.pt, else keepers only."""
-    if MULTI_POLICY.is_file():
-        return MULTI_POLICY, agents // 2, agents - agents // 2
-    return LANEKEEPING_POLICY, 0, agents
+def pick_policy(agents: int, policy: Path | None) -> tuple[Path, int, int]:
+    """(checkpoint, overtakers, keepers): half and half with a multi-behaviour policy, else all of
+    the policy's own behaviour. Default: the bundled multi.pt, or lanekeeping.pt if that is missing."""
+    if policy is None:
+        policy = MULTI_POLICY if MULTI_POLICY.is_file() else LANEKEEPING_POLICY
+    meta = load_checkpoint(policy).meta
+    if int(meta["obs_dim"]) == OBS_SIZE_WITH_ID:
+        return policy, agents // 2, agents - agents // 2
+    if meta.get("behaviour") == "overtaking":
+        return policy, agents, 0
+    return policy, 0, agents
 
 
 def build_highway(out_dir: Path, length: float) -> Path:
@@ -167,8 +176,10 @@ def run_population(
         population.close()
 
 
-def config_for(row: Row, net: Path, fcd: Path, steps: int, seed: int) -> PopulateConfig:
-    policy, overtakers, keepers = pick_policy(row.agents)
+def config_for(
+    row: Row, net: Path, fcd: Path, steps: int, seed: int, policy: Path | None = None
+) -> PopulateConfig:
+    policy, overtakers, keepers = pick_policy(row.agents, policy)
     return PopulateConfig(
         net=net,
         overtakers=overtakers,
@@ -188,9 +199,11 @@ def sumo_alone_config(config: PopulateConfig) -> PopulateConfig:
                    + config.background)  # fmt: skip
 
 
-def run_row(row: Row, net: Path, tmp: Path, steps: int, seed: int, rounds: int) -> Result:
+def run_row(
+    row: Row, net: Path, tmp: Path, steps: int, seed: int, rounds: int, policy: Path | None
+) -> Result:
     fcd = tmp / "fcd.xml"
-    config = config_for(row, net, fcd, steps, seed)
+    config = config_for(row, net, fcd, steps, seed, policy)
     alone = sumo_alone_config(config)
     result = Result(row, config.policy.name, config.overtakers, config.keepers, phase_s={})
     for _ in range(rounds):
@@ -213,11 +226,13 @@ def run_row(row: Row, net: Path, tmp: Path, steps: int, seed: int, rounds: int) 
     return result
 
 
-def profile_row(row: Row, net: Path, tmp: Path, steps: int, seed: int, top: int = 10) -> str:
+def profile_row(
+    row: Row, net: Path, tmp: Path, steps: int, seed: int, policy: Path | None, top: int = 10
+) -> str:
     """cProfile of the timed populate steps (a separate run: profiling slows it down)."""
     fcd = tmp / "fcd.xml"
     profiler = cProfile.Profile()
-    run_population(Population(config_for(row, net, fcd, steps, seed)), fcd, steps, profiler)
+    run_population(Population(config_for(row, net, fcd, steps, seed, policy)), fcd, steps, profiler)
     out = io.StringIO()
     pstats.Stats(profiler, stream=out).sort_stats("tottime").print_stats(top)
     return out.getvalue()
@@ -301,6 +316,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rounds", type=int, default=3, help="populate / SUMO-alone alternations")
     parser.add_argument("--length", type=float, default=30_000.0, help="highway length, metres")
+    parser.add_argument("--policy", type=Path, default=None, help="default: the bundled multi.pt")
     parser.add_argument("--csv", type=Path, default=None, help="also write the table here")
     parser.add_argument("--profile", action="store_true", help="cProfile top-10 (tottime) of the largest row")
     args = parser.parse_args(argv)
@@ -326,7 +342,7 @@ def main(argv: list[str] | None = None) -> None:
             net = build_highway(tmp, args.length)
         for row in args.row_list:
             with progress(console, f"{row.agents:,} agents + {row.background} background"):
-                results.append(run_row(row, net, tmp, args.steps, args.seed, args.rounds))
+                results.append(run_row(row, net, tmp, args.steps, args.seed, args.rounds, args.policy))
         print_results(results, args, console)
         for line in target_lines(results):
             console.print(line)
@@ -336,7 +352,7 @@ def main(argv: list[str] | None = None) -> None:
         if args.profile:
             largest = max(args.row_list, key=lambda r: r.agents)
             with progress(console, f"profiling {largest.agents:,} agents"):
-                report = profile_row(largest, net, tmp, args.steps, args.seed)
+                report = profile_row(largest, net, tmp, args.steps, args.seed, args.policy)
             console.print(f"cProfile, {largest.agents:,} agents, {args.steps} steps, top 10 by tottime:")
             console.print(report, markup=False, highlight=False)
 

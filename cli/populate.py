@@ -36,12 +36,19 @@ def populate_command(
     keep_count: Annotated[
         bool, typer.Option(help="re-insert vehicles that leave so the counts hold")
     ] = False,
+    shield: Annotated[
+        bool, typer.Option(help="cut sideways moves towards cars alongside (--no-shield: the bare policy)")
+    ] = DEFAULTS.shield,
+    precision: Annotated[
+        str, typer.Option(help="actor arithmetic: auto (bfloat16 where the CPU has it), float32, bfloat16")
+    ] = DEFAULTS.precision,
     plot: Annotated[Path | None, typer.Option(help="also draw the traces into this PNG")] = None,
 ) -> None:
     """Drive learned keepers and overtakers (one batched policy call per step) and write SUMO FCD."""
     config = PopulateConfig(
         net=net, overtakers=overtakers, keepers=keepers, policy=policy, background=background, routes=routes,
         duration=duration, step_length=step_length, seed=seed, fcd=fcd, geo=geo, keep_count=keep_count,
+        shield=shield, precision=precision,
     )  # fmt: skip
     columns = (TextColumn("simulating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
                TimeElapsedColumn())  # fmt: skip
