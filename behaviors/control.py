@@ -17,7 +17,7 @@ from behaviors.actuation import Actuation, CarModel, actuate
 from behaviors.geometry import RoadGeometry
 from behaviors.rewards import NO_PROGRESS_SPEED
 from behaviors.sensors import AgentFrame, observe
-from behaviors.shield import safe_speed, search_reach, side_limits, surroundings
+from behaviors.shield import Surroundings, safe_speed, search_reach, side_limits, surroundings
 from behaviors.sim import AgentReadings, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
 
@@ -74,6 +74,7 @@ class Fleet:
         self.shield = shield
         self.side_limit: np.ndarray | None = None  # [N, 2] from the last sensing, when shielded
         self.speed_cap: np.ndarray | None = None  # [N] from the last sensing, when shielded
+        self._surroundings: Surroundings | None = None  # the shield's view, measured while sensing
         self.geometry = geometry
         self.car = car
         self.dt = dt
@@ -142,29 +143,8 @@ class Fleet:
             obs = self._observe(readings, vehicles, rows, with_id)
         if self.shield:
             with self.timer.phase("shield"):
-                self._shield(sim, vehicles, rows)
+                self._shield_limits(sim, vehicles, rows)
         return obs
-
-    def _shield(self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray) -> None:
-        """Side limits and speed caps for the next action; reads the speed of SUMO cars leading agents."""
-        f = self.frame
-        assert f is not None
-        agent_of = np.full(len(vehicles.ids), -1, np.int64)
-        agent_of[rows] = np.arange(len(rows))
-        reach = search_reach(float(self.speed.max(initial=0.0)), self.dt, self.car)
-        road_axis = f.heading - self.angle  # lanes run along the road, not along a swerving car
-        fronts = vehicles.position
-        around = surroundings(fronts[rows], road_axis, fronts, rows, self.car, reach)
-        leader_speed = np.zeros(len(rows))
-        led = np.flatnonzero(around.leader >= 0)
-        by_agent = agent_of[around.leader[led]]
-        along_road = self.speed * np.cos(self.angle)
-        leader_speed[led[by_agent >= 0]] = along_road[by_agent[by_agent >= 0]]
-        by_sumo = led[by_agent < 0]
-        if len(by_sumo):
-            leader_speed[by_sumo] = sim.read_speeds([vehicles.ids[r] for r in around.leader[by_sumo]])
-        self.side_limit = side_limits(around.side_room)
-        self.speed_cap = safe_speed(around.leader_gap, leader_speed, self.speed, self.dt, self.car)
 
     def _observe(self, readings: AgentReadings, vehicles: VehicleState, rows: np.ndarray, with_id: bool):
         self.frame = road_frame(self.geometry, readings, vehicles.position[rows], self.angle, self.car)
@@ -177,7 +157,35 @@ class Fleet:
             speed=self.speed,
             track_pos=np.clip(self.frame.offset / self.frame.half_width, -1.0, 1.0),
         )
-        return observe(agents, centres, rows, self.geometry, self.behaviour_id if with_id else None)
+        behaviour_id = self.behaviour_id if with_id else None
+        meanwhile = (lambda: self._measure_surroundings(vehicles, rows)) if self.shield else None
+        return observe(agents, centres, rows, self.geometry, behaviour_id, meanwhile)
+
+    def _measure_surroundings(self, vehicles: VehicleState, rows: np.ndarray) -> None:
+        """The shield's geometry (pure numpy; runs beside the track rays, see `observe`)."""
+        f = self.frame
+        assert f is not None
+        reach = search_reach(float(self.speed.max(initial=0.0)), self.dt, self.car)
+        road_axis = f.heading - self.angle  # lanes run along the road, not along a swerving car
+        fronts = vehicles.position
+        self._surroundings = surroundings(fronts[rows], road_axis, fronts, rows, self.car, reach)
+
+    def _shield_limits(self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray) -> None:
+        """Side limits and speed caps for the next action; reads the speed of SUMO cars leading agents."""
+        around = self._surroundings
+        assert around is not None
+        agent_of = np.full(len(vehicles.ids), -1, np.int64)
+        agent_of[rows] = np.arange(len(rows))
+        leader_speed = np.zeros(len(rows))
+        led = np.flatnonzero(around.leader >= 0)
+        by_agent = agent_of[around.leader[led]]
+        along_road = self.speed * np.cos(self.angle)
+        leader_speed[led[by_agent >= 0]] = along_road[by_agent[by_agent >= 0]]
+        by_sumo = led[by_agent < 0]
+        if len(by_sumo):
+            leader_speed[by_sumo] = sim.read_speeds([vehicles.ids[r] for r in around.leader[by_sumo]])
+        self.side_limit = side_limits(around.side_room)
+        self.speed_cap = safe_speed(around.leader_gap, leader_speed, self.speed, self.dt, self.car)
 
     def act(self, sim: SumoSim, actions: np.ndarray) -> Actuation:
         """Apply [N, 3] actions (steer, accel, brake) for the next step; returns what was commanded."""
