@@ -74,7 +74,7 @@ class Fleet:
         self.shield = shield
         self.side_limit: np.ndarray | None = None  # [N, 2] from the last sensing, when shielded
         self.speed_cap: np.ndarray | None = None  # [N] from the last sensing, when shielded
-        self._surroundings: Surroundings | None = None  # the shield's view, measured while sensing
+        self._surroundings: Surroundings | None = None  # the shield's view, measured after sensing
         self.geometry = geometry
         self.car = car
         self.dt = dt
@@ -143,6 +143,7 @@ class Fleet:
             obs = self._observe(readings, vehicles, rows, with_id)
         if self.shield:
             with self.timer.phase("shield"):
+                self._measure_surroundings(vehicles, rows)
                 self._shield_limits(sim, vehicles, rows)
         return obs
 
@@ -157,12 +158,10 @@ class Fleet:
             speed=self.speed,
             track_pos=np.clip(self.frame.offset / self.frame.half_width, -1.0, 1.0),
         )
-        behaviour_id = self.behaviour_id if with_id else None
-        meanwhile = (lambda: self._measure_surroundings(vehicles, rows)) if self.shield else None
-        return observe(agents, centres, rows, self.geometry, behaviour_id, meanwhile)
+        return observe(agents, centres, rows, self.geometry, self.behaviour_id if with_id else None)
 
     def _measure_surroundings(self, vehicles: VehicleState, rows: np.ndarray) -> None:
-        """The shield's geometry (pure numpy; runs beside the track rays, see `observe`)."""
+        """The shield's view of each agent's surroundings (pure numpy, see shield.py)."""
         f = self.frame
         assert f is not None
         reach = search_reach(float(self.speed.max(initial=0.0)), self.dt, self.car)

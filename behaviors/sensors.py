@@ -66,14 +66,11 @@ def observe(
     agent_rows: np.ndarray,
     geometry: RoadGeometry,
     behaviour_id: np.ndarray | None = None,
-    meanwhile: Callable[[], object] | None = None,
 ) -> np.ndarray:
     """float32 [N, 65] (or [N, 66] with `behaviour_id`) observations.
 
     `vehicle_centres` holds every vehicle in the simulation (SUMO's own too);
     `agent_rows[i]` is agent i's row in it, so an agent does not see itself.
-    `meanwhile`, if given, runs on this thread while a big fleet's track rays run on the
-    worker (populate's shield geometry goes there, so it costs no extra wall time).
     """
     n = len(agents.speed)
     track = _track_rays_soon(agents.centre, agents.heading, geometry)
@@ -89,8 +86,6 @@ def observe(
     obs[:, SLICES["opponents"]] = (
         opponent_rays(agents.centre, agents.heading, vehicle_centres, agent_rows) / RAY_RANGE
     )
-    if meanwhile is not None:
-        meanwhile()
     obs[:, SLICES["track"]] = track() / RAY_RANGE
     if behaviour_id is not None:
         obs[:, OBS_SIZE] = behaviour_id
