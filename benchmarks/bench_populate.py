@@ -9,8 +9,9 @@ Every row runs in one process, one after the other (libsumo restarts after close
    and driven by SUMO; only the SUMO step (the "sumo" phase) is timed;
 3. SUMO alone without FCD: as 2 without `--fcd-output`, so the FCD column is what writing FCD
    costs SUMO per step for that many vehicles.
-Each run warms up (all vehicles inserted) before timing. The network is a long straight 3-lane
-highway built into a temp dir with the project's own builder (the bundled one holds ~600 cars).
+Each run starts in a fresh process and warms up (all vehicles inserted) before timing. The
+network is a long straight 3-lane highway built into a temp dir with the project's own builder
+(the bundled one holds ~600 cars).
 
 Usage: python benchmarks/bench_populate.py [--rows 100:100,1000:200] [--steps 200] [--seed 0]
                                            [--rounds 3] [--length 30000] [--policy CKPT] [--csv PATH]
@@ -22,10 +23,12 @@ from __future__ import annotations
 import argparse
 import cProfile
 import io
+import multiprocessing
 import pstats
 import tempfile
 import time
 from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -145,9 +148,13 @@ def build_highway(out_dir: Path, length: float) -> Path:
     return scenario.net
 
 
+RunOutput = tuple[int, float, dict[str, float], dict[str, int]]
+"""(timed steps, seconds, seconds per phase, counters)."""
+
+
 def run_population(
     population: Population, fcd: Path, steps: int, profiler: cProfile.Profile | None = None
-) -> tuple[int, float, dict[str, float], dict[str, int]]:
+) -> RunOutput:
     """Warm up, then time `steps` whole steps; returns steps, seconds, phases and counters."""
     population.start(partial_path(fcd))
     try:
@@ -199,6 +206,24 @@ def sumo_alone_config(config: PopulateConfig) -> PopulateConfig:
                    + config.background)  # fmt: skip
 
 
+def run_fresh(config: PopulateConfig, fcd: Path, steps: int, with_fcd: bool = True) -> RunOutput:
+    """One timed run in a process of its own.
+
+    SUMO's step time depends on what the process ran before (its heap after earlier libsumo
+    runs): SUMO alone measured 7% faster after a 100-agent row than as the process's first run.
+    A fresh process per run gives populate and SUMO alone the same start.
+    """
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=1, mp_context=context) as pool:
+        return pool.submit(_run_in_child, config, fcd, steps, with_fcd).result()
+
+
+def _run_in_child(config: PopulateConfig, fcd: Path, steps: int, with_fcd: bool) -> RunOutput:
+    torch.set_num_threads(POLICY_THREADS)  # as `behave populate` does
+    population = Population(config) if with_fcd else NoFcdPopulation(config)
+    return run_population(population, fcd, steps)
+
+
 def run_row(
     row: Row, net: Path, tmp: Path, steps: int, seed: int, rounds: int, policy: Path | None
 ) -> Result:
@@ -207,7 +232,7 @@ def run_row(
     alone = sumo_alone_config(config)
     result = Result(row, config.policy.name, config.overtakers, config.keepers, phase_s={})
     for _ in range(rounds):
-        done, total, phases, counts = run_population(Population(config), fcd, steps)
+        done, total, phases, counts = run_fresh(config, fcd, steps)
         result.steps += done
         result.total_s += total
         for name, seconds in phases.items():
@@ -216,11 +241,11 @@ def run_row(
         result.off_tracks += counts["off_tracks"]
         result.retries += counts["retries"]
         result.on_road = counts["on_road"] if result.on_road == 0 else min(result.on_road, counts["on_road"])
-        done, _, phases, counts = run_population(Population(alone), fcd, steps)
+        done, _, phases, counts = run_fresh(alone, fcd, steps)
         result.alone_s += phases.get("sumo", 0.0)
         result.alone_steps += done
         result.alone_on_road = counts["on_road"]
-        done, _, phases, _ = run_population(NoFcdPopulation(alone), fcd, steps)
+        done, _, phases, _ = run_fresh(alone, fcd, steps, with_fcd=False)
         result.no_fcd_s += phases.get("sumo", 0.0)
         result.no_fcd_steps += done
     return result
