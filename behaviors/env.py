@@ -55,7 +55,7 @@ class EnvConfig:
     overtakers: int = 0
     keepers: int = 0
     placement: str = "C"
-    opponents: int | None = None  # passive slower cars ahead (overtaking); None = as many as agents
+    opponents: int | None = None  # passive slower cars ahead; None: as many as agents (overtaking), 0 (multi)
     max_steps: int = 1000
     step_length: float = 0.2
     spacing: float = 30.0  # metres between consecutive cars in the same lane at the start
@@ -97,9 +97,12 @@ class EnvConfig:
 
     @property
     def n_opponents(self) -> int:
-        if self.behaviour != "overtaking":
-            return 0
-        return self.agents if self.opponents is None else self.opponents
+        """Passive slower cars ahead: something to overtake (the paper's multi run had none)."""
+        if self.behaviour == "overtaking":
+            return self.agents if self.opponents is None else self.opponents
+        if self.behaviour == "multi":
+            return self.opponents or 0
+        return 0
 
     @property
     def obs_size(self) -> int:

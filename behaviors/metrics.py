@@ -86,11 +86,11 @@ def summary(stats: EpisodeStats, speed_limit: float, passed: float | None = None
 
 
 def passed_fraction(env: BehaveEnv) -> float | None:
-    """Share of (agent, passive car) pairs where the agent ended ahead of the car it started behind."""
+    """Share of (overtaker, passive car) pairs where the overtaker ended ahead of the passive car."""
     n_opp = env.config.n_opponents
-    if n_opp == 0:
+    if n_opp == 0 or not env.slot_behaviour.any():
         return None
-    agents = env.progress[n_opp:]
+    agents = env.progress[n_opp:][env.slot_behaviour == 1]
     passive = env.progress[:n_opp]
     return float((agents[:, None] > passive[None, :]).mean())
 

@@ -24,7 +24,9 @@ def train(
     placement: Annotated[
         str, typer.Option(help="multi start: A overtakers ahead, B keepers ahead, C mixed")
     ] = "C",
-    opponents: Annotated[int | None, typer.Option(help="slower passive cars ahead (overtaking)")] = None,
+    opponents: Annotated[
+        int | None, typer.Option(help="slower passive cars ahead (overtaking; multi: default 0)")
+    ] = None,
     episodes: Annotated[
         int, typer.Option(help="episodes to train (total, with --resume)")
     ] = DEFAULTS.episodes,

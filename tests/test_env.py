@@ -12,6 +12,7 @@ from pettingzoo.test import parallel_api_test
 from behaviors import BehaveError, make_env
 from behaviors.actuation import CarModel
 from behaviors.env import EnvConfig
+from behaviors.metrics import passed_fraction
 from behaviors.rewards import COLLISION_PENALTY, OFF_TRACK_PENALTY
 from behaviors.sensors import SLICES
 from behaviors.sim import VehicleState
@@ -207,6 +208,22 @@ def test_overtaking_puts_slower_passive_cars_ahead():
         assert len(passive) == 2
         agent_progress = [env.progress[env._car_row[a]] for a in env.agents]
         assert min(env.progress[env._car_row[p]] for p in passive) > max(agent_progress)
+    finally:
+        env.close()
+
+
+def test_multi_behaviour_can_have_passive_cars_to_overtake_and_passing_counts_overtakers_only():
+    assert EnvConfig(behaviour="multi", overtakers=1, keepers=1).n_opponents == 0  # the paper's setting
+    env = make_env("ring", behaviour="multi", overtakers=2, keepers=2, opponents=2, seed=4)
+    try:
+        env.reset_arrays(4)
+        passive = [v for v in env.sim.vehicle_ids() if v.startswith("passive_")]
+        assert len(passive) == 2 and len(env.agents) == 4
+        assert passed_fraction(env) == 0.0  # everyone starts behind the passive cars
+        overtakers = np.flatnonzero(env.slot_behaviour == 1) + 2  # progress rows: passive cars first
+        env.progress[overtakers[0]] = env.progress[:2].max() + 1.0  # one overtaker ahead of both
+        env.progress[np.flatnonzero(env.slot_behaviour == 0) + 2] = 1e9  # keepers do not count
+        assert passed_fraction(env) == pytest.approx(0.5)
     finally:
         env.close()
 
