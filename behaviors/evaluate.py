@@ -115,8 +115,14 @@ def plan_evaluation(
     seed: int,
     max_steps: int,
     baseline: str | None,
+    opponents: int | None = None,
+    shield: bool = False,
 ) -> EvaluationPlan:
-    """Check every option against the checkpoints before anything runs; BehaveError names the problem."""
+    """Check every option against the checkpoints before anything runs; BehaveError names the problem.
+
+    `opponents`: slower passive cars ahead (see EnvConfig); `shield`: drive through populate's
+    safety shield, to see a policy as `behave populate` drives it.
+    """
     if not checkpoints and baseline is None:
         raise BehaveError("give at least one checkpoint (or --baseline sumo)")
     if baseline not in (None, BASELINE):
@@ -137,7 +143,8 @@ def plan_evaluation(
         placements = placements or ["A", "B", "C"]
         settings = [
             (f"case {p}", EnvConfig(scenario=scenario, behaviour="multi", overtakers=overtakers,
-                                   keepers=keepers, placement=p, max_steps=max_steps))
+                                   keepers=keepers, placement=p, max_steps=max_steps, opponents=opponents,
+                                   shield=shield))
             for p in placements
         ]  # fmt: skip
     else:
@@ -146,9 +153,10 @@ def plan_evaluation(
         if not agents:
             raise BehaveError("the agent list is empty: give e.g. --agents 3,5,7")
         settings = [
-            (f"{n} agents", EnvConfig(scenario=scenario, behaviour=behaviour, agents=n, max_steps=max_steps))
+            (f"{n} agents", EnvConfig(scenario=scenario, behaviour=behaviour, agents=n, max_steps=max_steps,
+                                      opponents=opponents, shield=shield))
             for n in agents
-        ]
+        ]  # fmt: skip
     for _, config in settings:
         BehaveEnv(config).close()  # validates scenario, counts and capacity before any long run
     policies: list[tuple[str, Path | None]] = [(path.stem, path) for path in checkpoints]

@@ -27,6 +27,10 @@ def evaluate_command(
     baseline: Annotated[
         str | None, typer.Option(help="'sumo': SUMO's own drivers as a reference row")
     ] = None,
+    opponents: Annotated[
+        int | None, typer.Option(help="slower passive cars ahead (overtaking: default as many as agents)")
+    ] = None,
+    shield: Annotated[bool, typer.Option(help="drive through populate's safety shield")] = False,
     out: Annotated[Path, typer.Option(help="directory for results.csv, results.md, metrics.png")] = Path(
         "runs/evaluate"
     ),
@@ -35,7 +39,7 @@ def evaluate_command(
     plan = plan_evaluation(
         list(checkpoints or []), agents=parse_ints(agents), episodes=episodes, behaviour=behaviour,
         overtakers=overtakers, keepers=keepers, placements=parse_list(placement), scenario=scenario,
-        seed=seed, max_steps=max_steps, baseline=baseline,
+        seed=seed, max_steps=max_steps, baseline=baseline, opponents=opponents, shield=shield,
     )  # fmt: skip
     console = Console()
     results = run_plan(plan, on_setting=lambda p, s: console.print(f"evaluating {p}: {s}", style="dim"))

@@ -85,6 +85,7 @@ def test_evaluate_writes_table_csv_markdown_and_png(tmp_path, checkpoint):
         ({"behaviour": "multi"}, "takes 65 observations but multi gives 66"),
         ({"baseline": "idm"}, "unknown baseline"),
         ({"agents": [0]}, "at least one agent"),
+        ({"opponents": -1}, "opponents must be >= 0"),
     ],
 )
 def test_bad_input_is_refused_before_anything_runs(checkpoint, kwargs, message):
@@ -93,3 +94,10 @@ def test_bad_input_is_refused_before_anything_runs(checkpoint, kwargs, message):
                "baseline": None, **kwargs}  # fmt: skip
     with pytest.raises(BehaveError, match=message):
         plan_evaluation(**options)
+
+
+def test_opponents_and_the_shield_reach_every_setting(checkpoint):
+    plan = plan_evaluation([checkpoint], agents=[1, 2], episodes=1, behaviour="overtaking", overtakers=0,
+                           keepers=0, placements=None, scenario="ring", seed=0, max_steps=10, baseline=None,
+                           opponents=3, shield=True)  # fmt: skip
+    assert [(c.n_opponents, c.shield) for _, c in plan.settings] == [(3, True), (3, True)]
