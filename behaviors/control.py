@@ -17,7 +17,7 @@ from behaviors.actuation import Actuation, CarModel, actuate
 from behaviors.geometry import RoadGeometry
 from behaviors.rewards import NO_PROGRESS_SPEED
 from behaviors.sensors import AgentFrame, observe
-from behaviors.shield import Surroundings, safe_speed, search_reach, side_limits, surroundings
+from behaviors.shield import safe_speed, search_reach, side_limits, surroundings
 from behaviors.sim import AgentReadings, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
 
@@ -74,7 +74,6 @@ class Fleet:
         self.shield = shield
         self.side_limit: np.ndarray | None = None  # [N, 2] from the last sensing, when shielded
         self.speed_cap: np.ndarray | None = None  # [N] from the last sensing, when shielded
-        self._surroundings: Surroundings | None = None  # the shield's view, measured after sensing
         self.geometry = geometry
         self.car = car
         self.dt = dt
@@ -143,8 +142,7 @@ class Fleet:
             obs = self._observe(readings, vehicles, rows, with_id)
         if self.shield:
             with self.timer.phase("shield"):
-                self._measure_surroundings(vehicles, rows)
-                self._shield_limits(sim, vehicles, rows)
+                self._shield(sim, vehicles, rows)
         return obs
 
     def _observe(self, readings: AgentReadings, vehicles: VehicleState, rows: np.ndarray, with_id: bool):
@@ -160,19 +158,14 @@ class Fleet:
         )
         return observe(agents, centres, rows, self.geometry, self.behaviour_id if with_id else None)
 
-    def _measure_surroundings(self, vehicles: VehicleState, rows: np.ndarray) -> None:
-        """The shield's view of each agent's surroundings (pure numpy, see shield.py)."""
+    def _shield(self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray) -> None:
+        """Side limits and speed caps for the next action; reads the speed of SUMO cars leading agents."""
         f = self.frame
         assert f is not None
         reach = search_reach(float(self.speed.max(initial=0.0)), self.dt, self.car)
         road_axis = f.heading - self.angle  # lanes run along the road, not along a swerving car
         fronts = vehicles.position
-        self._surroundings = surroundings(fronts[rows], road_axis, fronts, rows, self.car, reach)
-
-    def _shield_limits(self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray) -> None:
-        """Side limits and speed caps for the next action; reads the speed of SUMO cars leading agents."""
-        around = self._surroundings
-        assert around is not None
+        around = surroundings(fronts[rows], road_axis, fronts, rows, self.car, reach)
         agent_of = np.full(len(vehicles.ids), -1, np.int64)
         agent_of[rows] = np.arange(len(rows))
         leader_speed = np.zeros(len(rows))

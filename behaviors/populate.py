@@ -68,7 +68,7 @@ class PopulateConfig:
     geo: bool = False
     keep_count: bool = False
     shield: bool = True
-    precision: str = "auto"  # the actor's arithmetic: float32, bfloat16, or auto (see inference_dtype)
+    precision: str = "auto"  # the actor's arithmetic: float32, bfloat16, or auto (see use_bfloat16)
 
     def validate(self) -> None:
         if self.overtakers < 0 or self.keepers < 0 or self.background < 0:

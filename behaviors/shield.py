@@ -15,9 +15,9 @@ policy and SUMO and only ever takes something away:
   car ahead if that car braked as hard as the agent can (Gipps' safe speed),
   with no harder braking than an emergency stop.
 
-Steering and throttle stay the policy's everywhere else. Training and evaluation
-never use it: they measure the bare policy. Pure numpy; `Fleet` calls it with the
-same positions the sensors use.
+Steering and throttle stay the policy's everywhere else. Training never uses it,
+evaluation only when asked (`behave evaluate --shield`): they measure the bare
+policy. Pure numpy; `Fleet` calls it with the same vehicle positions the sensors use.
 """
 
 from __future__ import annotations
