@@ -37,7 +37,11 @@ def populate_command(
         bool, typer.Option(help="re-insert vehicles that leave so the counts hold")
     ] = False,
     shield: Annotated[
-        bool, typer.Option(help="cut sideways moves towards cars alongside (--no-shield: the bare policy)")
+        bool,
+        typer.Option(
+            help="safety shield: no move into a car alongside, no speed that cannot stop behind "
+            "the car ahead (--no-shield: the bare policy)"
+        ),
     ] = DEFAULTS.shield,
     precision: Annotated[
         str, typer.Option(help="actor arithmetic: auto (bfloat16 where the CPU has it), float32, bfloat16")
