@@ -9,7 +9,7 @@ business (env.py for training, populate.py for any network).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -63,6 +63,40 @@ def road_frame(
     )
 
 
+@dataclass
+class AgentRows:
+    """Every per-agent value of a Fleet (row i = `ids[i]`), in one place so that `take`
+    drops a leaving agent's row from all of them at once: a new per-agent array is a new
+    field here, and cannot be forgotten when agents leave."""
+
+    ids: list[str] = field(default_factory=list)
+    speed: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    angle: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    slow_time: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    behaviour_id: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    vehicle_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # in the last read
+    frame: RoadFrame | None = None
+    side_limit: np.ndarray | None = None  # [N, 2] from the last sensing, when shielded
+    speed_cap: np.ndarray | None = None  # [N] from the last sensing, when shielded
+
+    def take(self, mask: np.ndarray) -> AgentRows:
+        """The rows where `mask` is True, of every field."""
+        return AgentRows(**{f.name: take_rows(getattr(self, f.name), mask) for f in fields(self)})
+
+
+def take_rows(value, mask: np.ndarray):
+    """`value`'s rows where `mask` is True; None stays None, a RoadFrame is taken field by field."""
+    if value is None:
+        return None
+    if isinstance(value, RoadFrame):
+        return RoadFrame(*(take_rows(getattr(value, f.name), mask) for f in fields(RoadFrame)))
+    if len(value) != len(mask):
+        raise ValueError(f"per-agent value has {len(value)} rows, the mask {len(mask)}")
+    if isinstance(value, list):
+        return [item for item, keep in zip(value, mask, strict=True) if keep]
+    return value[mask]
+
+
 class Fleet:
     """State and stepping of N learned agents (row i = `ids[i]`), vectorised."""
 
@@ -72,41 +106,45 @@ class Fleet:
         """`shield`: keep agents off the cars beside and ahead of them (populate only, see shield.py)."""
         self.timer = timer
         self.shield = shield
-        self.side_limit: np.ndarray | None = None  # [N, 2] from the last sensing, when shielded
-        self.speed_cap: np.ndarray | None = None  # [N] from the last sensing, when shielded
         self.geometry = geometry
         self.car = car
         self.dt = dt
-        self.ids: list[str] = []
-        self.speed = np.zeros(0)
-        self.angle = np.zeros(0)
-        self.slow_time = np.zeros(0)
-        self.behaviour_id = np.zeros(0, np.float32)
-        self.frame: RoadFrame | None = None
-        self.vehicle_rows = np.zeros(0, np.int64)  # each agent's row in the last VehicleState sensed
+        self.rows = AgentRows()
         self._located: tuple[dict[str, int], list[str], np.ndarray] | None = None
 
     def __len__(self) -> int:
-        return len(self.ids)
+        return len(self.rows.ids)
+
+    # read-only views of the per-agent rows that callers use
+    ids = property(lambda self: self.rows.ids)
+    speed = property(lambda self: self.rows.speed)
+    slow_time = property(lambda self: self.rows.slow_time)
+    behaviour_id = property(lambda self: self.rows.behaviour_id)
+    frame = property(lambda self: self.rows.frame)
+    vehicle_rows = property(lambda self: self.rows.vehicle_rows)
 
     def add(self, ids: list[str], speed: np.ndarray, behaviour_id: np.ndarray) -> None:
-        self.ids = self.ids + ids
-        self.speed = np.concatenate([self.speed, speed])
-        self.angle = np.concatenate([self.angle, np.zeros(len(ids))])
-        self.slow_time = np.concatenate([self.slow_time, np.zeros(len(ids))])
-        self.behaviour_id = np.concatenate([self.behaviour_id, behaviour_id.astype(np.float32)])
+        """New agents at the end; their derived rows come with the next `sense`."""
+        r, zeros = self.rows, np.zeros(len(ids))
+        self.rows = AgentRows(
+            ids=r.ids + ids,
+            speed=np.concatenate([r.speed, speed]),
+            angle=np.concatenate([r.angle, zeros]),
+            slow_time=np.concatenate([r.slow_time, zeros]),
+            behaviour_id=np.concatenate([r.behaviour_id, behaviour_id.astype(np.float32)]),
+        )
 
     def keep(self, mask: np.ndarray) -> None:
         """Drop the rows where `mask` is False (agents that left)."""
-        if mask.all():
-            return
-        self.ids = [vid for vid, k in zip(self.ids, mask, strict=True) if k]
-        self.speed, self.angle = self.speed[mask], self.angle[mask]
-        self.slow_time, self.behaviour_id = self.slow_time[mask], self.behaviour_id[mask]
-        if self.side_limit is not None and self.speed_cap is not None:
-            self.side_limit, self.speed_cap = self.side_limit[mask], self.speed_cap[mask]
-        if self.frame is not None:
-            self.frame = RoadFrame(*(getattr(self.frame, f.name)[mask] for f in fields(RoadFrame)))
+        if not mask.all():
+            self.rows = self.rows.take(mask)
+
+    def record_speed(self, speed: np.ndarray) -> None:
+        """The agents' new speeds (from the actuation, or SUMO's when SUMO drives) and how long
+        each has been below the no-progress speed."""
+        r = self.rows
+        r.slow_time = np.where(speed < NO_PROGRESS_SPEED, r.slow_time + self.dt, 0.0)
+        r.speed = speed
 
     def locate(self, vehicles: VehicleState) -> np.ndarray:
         """Each agent's row in `vehicles`, -1 for agents SUMO no longer has.
@@ -137,7 +175,7 @@ class Fleet:
             rows = self.locate(vehicles)
             if (rows < 0).any():
                 raise RuntimeError("Fleet.sense with agents SUMO no longer has: keep() them out first")
-            self.vehicle_rows = rows
+            self.rows.vehicle_rows = rows
         with self.timer.phase("sensors"):
             obs = self._observe(readings, vehicles, rows, with_id)
         if self.shield:
@@ -146,24 +184,26 @@ class Fleet:
         return obs
 
     def _observe(self, readings: AgentReadings, vehicles: VehicleState, rows: np.ndarray, with_id: bool):
-        self.frame = road_frame(self.geometry, readings, vehicles.position[rows], self.angle, self.car)
+        r = self.rows
+        r.frame = frame = road_frame(self.geometry, readings, vehicles.position[rows], r.angle, self.car)
         centres = vehicles.position.copy()
-        centres[rows] = self.frame.centre  # agents' centres are known exactly; others' fronts suffice
+        centres[rows] = frame.centre  # agents' centres are known exactly; others' fronts suffice
         agents = AgentFrame(
-            centre=self.frame.centre,
-            heading=self.frame.heading,
-            angle=self.angle,
-            speed=self.speed,
-            track_pos=np.clip(self.frame.offset / self.frame.half_width, -1.0, 1.0),
+            centre=frame.centre,
+            heading=frame.heading,
+            angle=r.angle,
+            speed=r.speed,
+            track_pos=np.clip(frame.offset / frame.half_width, -1.0, 1.0),
         )
-        return observe(agents, centres, rows, self.geometry, self.behaviour_id if with_id else None)
+        return observe(agents, centres, rows, self.geometry, r.behaviour_id if with_id else None)
 
     def _shield(self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray) -> None:
         """Side limits and speed caps for the next action; reads the speed of SUMO cars leading agents."""
-        f = self.frame
+        r = self.rows
+        f = r.frame
         assert f is not None
-        reach = search_reach(float(self.speed.max(initial=0.0)), self.dt, self.car)
-        road_axis = f.heading - self.angle  # lanes run along the road, not along a swerving car
+        reach = search_reach(float(r.speed.max(initial=0.0)), self.dt, self.car)
+        road_axis = f.heading - r.angle  # lanes run along the road, not along a swerving car
         fronts = vehicles.position
         around = surroundings(fronts[rows], road_axis, fronts, rows, self.car, reach)
         agent_of = np.full(len(vehicles.ids), -1, np.int64)
@@ -171,25 +211,26 @@ class Fleet:
         leader_speed = np.zeros(len(rows))
         led = np.flatnonzero(around.leader >= 0)
         by_agent = agent_of[around.leader[led]]
-        along_road = self.speed * np.cos(self.angle)
+        along_road = r.speed * np.cos(r.angle)
         leader_speed[led[by_agent >= 0]] = along_road[by_agent[by_agent >= 0]]
         by_sumo = led[by_agent < 0]
         if len(by_sumo):
             leader_speed[by_sumo] = sim.read_speeds([vehicles.ids[r] for r in around.leader[by_sumo]])
-        self.side_limit = side_limits(around.side_room)
-        self.speed_cap = safe_speed(around.leader_gap, leader_speed, self.speed, self.dt, self.car)
+        r.side_limit = side_limits(around.side_room)
+        r.speed_cap = safe_speed(around.leader_gap, leader_speed, r.speed, self.dt, self.car)
 
     def act(self, sim: SumoSim, actions: np.ndarray) -> Actuation:
         """Apply [N, 3] actions (steer, accel, brake) for the next step; returns what was commanded."""
-        f = self.frame
+        r = self.rows
+        f = r.frame
         if f is None:
             raise RuntimeError("Fleet.act before Fleet.sense")
         with self.timer.phase("actuation"):
             result = actuate(
-                actions, self.speed, self.angle, f.offset, f.half_width, f.curvature, f.speed_limit,
-                self.dt, self.car, self.side_limit, self.speed_cap,
+                actions, r.speed, r.angle, f.offset, f.half_width, f.curvature, f.speed_limit,
+                self.dt, self.car, r.side_limit, r.speed_cap,
             )  # fmt: skip
-            sim.command_agents(self.ids, result.lane_speed, result.lateral_move)
-        self.speed, self.angle = result.speed, result.angle
-        self.slow_time = np.where(result.speed < NO_PROGRESS_SPEED, self.slow_time + self.dt, 0.0)
+            sim.command_agents(r.ids, result.lane_speed, result.lateral_move)
+        r.angle = result.angle
+        self.record_speed(result.speed)
         return result

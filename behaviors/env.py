@@ -21,7 +21,6 @@ from behaviors.errors import BehaveError
 from behaviors.geometry import RoadGeometry, load_geometry
 from behaviors.rewards import (
     NO_PROGRESS_SECONDS,
-    NO_PROGRESS_SPEED,
     RewardTerms,
     race_positions,
     step_rewards,
@@ -450,8 +449,7 @@ class BehaveEnv(ParallelEnv):
     def _follow_sumo(self, present: np.ndarray) -> np.ndarray:
         """Baseline: take the speeds SUMO chose (heading stays along the lane)."""
         fleet = self.fleet
-        fleet.speed = self.sim.read_speeds(fleet.ids)
-        fleet.slow_time = np.where(fleet.speed < NO_PROGRESS_SPEED, fleet.slow_time + fleet.dt, 0.0)
+        fleet.record_speed(self.sim.read_speeds(fleet.ids))
         speed = np.zeros(len(present))
         speed[present] = fleet.speed
         return speed
