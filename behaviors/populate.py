@@ -22,11 +22,13 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import csv
 import functools
+import io
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import astuple, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +41,7 @@ from behaviors.ddpg.checkpoint import load_actor, load_checkpoint
 from behaviors.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.errors import BehaveError
 from behaviors.export import FCD_SUFFIXES, fcd_options
-from behaviors.files import ensure_writable_dir
+from behaviors.files import atomic_write_text, ensure_writable_dir
 from behaviors.geometry import RoadGeometry, load_geometry
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID
 from behaviors.sim import SimOptions, SumoSim, VehicleState
@@ -87,30 +89,55 @@ class PopulateConfig:
             raise BehaveError(f"routes file not found: {self.routes}")
 
 
+CAR_CLASS = "passenger"
+"""The SUMO vehicle class of every car behave adds: only its lanes and connections count."""
+
+
 @dataclass(frozen=True)
 class RouteGraph:
-    """Multi-lane normal edges and which of them follow each other."""
+    """Normal edges with at least two car lanes, and which of them a car can drive on to."""
 
     edges: list[str]
     length: np.ndarray  # [E] metres
-    lanes: np.ndarray  # [E]
+    lanes: np.ndarray  # [E] lanes a passenger car may use (not sidewalks, bus or bike lanes)
     successors: list[list[int]]
     start_cdf: np.ndarray  # [E] cumulative lane-metres: a route starts on an edge in proportion to them
+
+
+def car_lanes(edge: Any) -> int:
+    """How many of a sumolib edge's lanes a passenger car may use: one car lane beside a bus lane is one."""
+    return sum(lane.allows(CAR_CLASS) for lane in edge.getLanes())
+
+
+def car_connection(connection: Any) -> bool:
+    """Whether a car may take a sumolib connection: itself and both its lanes allow passenger cars.
+
+    SUMO refuses a route ("No connection") whose consecutive edges are linked only by, say,
+    a bus lane's connections.
+    """
+    return (
+        connection.allows(CAR_CLASS)
+        and connection.getFromLane().allows(CAR_CLASS)
+        and connection.getToLane().allows(CAR_CLASS)
+    )
 
 
 def route_graph(geometry: RoadGeometry, net_file: Path) -> RouteGraph:
     import sumolib
 
     net = sumolib.net.readNet(str(net_file))
-    edges = [
-        e
-        for e in net.getEdges()
-        if e.getFunction() == "" and e.getLaneNumber() >= 2 and e.allows("passenger")
-    ]
+    edges = [e for e in net.getEdges() if e.getFunction() == "" and car_lanes(e) >= 2]
     index = {e.getID(): k for k, e in enumerate(edges)}
-    successors = [sorted({index[s.getID()] for s in e.getOutgoing() if s.getID() in index}) for e in edges]
+    successors = [
+        sorted(
+            index[to.getID()]
+            for to, connections in e.getOutgoing().items()
+            if to.getID() in index and any(map(car_connection, connections))
+        )
+        for e in edges
+    ]
     length = np.array([geometry.edges[e.getID()].length for e in edges])
-    lanes = np.array([e.getLaneNumber() for e in edges])
+    lanes = np.array([car_lanes(e) for e in edges])
     return RouteGraph(
         edges=[e.getID() for e in edges],
         length=length,
@@ -120,15 +147,55 @@ def route_graph(geometry: RoadGeometry, net_file: Path) -> RouteGraph:
     )
 
 
-def random_route(graph: RouteGraph, rng: np.random.Generator, min_length: float) -> list[str]:
-    """A walk along multi-lane edges from a start drawn by lane-metres, until long enough or a dead end."""
-    k = int(np.searchsorted(graph.start_cdf, rng.random() * graph.start_cdf[-1], side="right"))
+def random_start(graph: RouteGraph, rng: np.random.Generator) -> int:
+    """An edge drawn in proportion to its car lane-metres."""
+    return int(np.searchsorted(graph.start_cdf, rng.random() * graph.start_cdf[-1], side="right"))
+
+
+def random_walk(
+    graph: RouteGraph, start: int, rng: np.random.Generator, min_length: float
+) -> tuple[str, ...]:
+    """A walk along multi-lane edges from `start` until long enough or a dead end."""
+    k = start
     route, length = [k], graph.length[k]
     while length < min_length and graph.successors[k]:
         k = graph.successors[k][int(rng.integers(len(graph.successors[k])))]
         route.append(k)
         length += graph.length[k]
-    return [graph.edges[i] for i in route]
+    return tuple(graph.edges[i] for i in route)
+
+
+ROUTE_VARIANTS = 8
+"""Routes drawn per start edge, then reused. SUMO keeps every route it is given until the run
+ends: one new route per insertion (and per retry) grew populate by 0.24 MB per simulated second
+with 200 agents."""
+
+
+class RoutePool:
+    """Route ids for new vehicles: at most ROUTE_VARIANTS walks per start edge, each edge list
+    handed to SUMO once, so the routes SUMO holds are bounded by the net, not by the run."""
+
+    def __init__(
+        self, graph: RouteGraph, min_length: float, add: Callable[[str, tuple[str, ...]], None]
+    ) -> None:
+        self.graph = graph
+        self.min_length = min_length
+        self.add = add  # hands a new route to SUMO
+        self.by_start: dict[int, list[str]] = {}
+        self.by_edges: dict[tuple[str, ...], str] = {}
+
+    def draw(self, rng: np.random.Generator) -> str:
+        """A route id; a start edge's first walks are kept (repeats included, so reuse keeps their odds)."""
+        start = random_start(self.graph, rng)
+        kept = self.by_start.setdefault(start, [])
+        if len(kept) >= ROUTE_VARIANTS:
+            return kept[int(rng.integers(len(kept)))]
+        edges = random_walk(self.graph, start, rng, self.min_length)
+        if edges not in self.by_edges:
+            self.by_edges[edges] = f"behave_route_{len(self.by_edges)}"
+            self.add(self.by_edges[edges], edges)
+        kept.append(self.by_edges[edges])
+        return kept[-1]
 
 
 @dataclass
@@ -144,6 +211,9 @@ class PopulateSummary:
     wall_s: float = 0.0
     speed_sum: dict[str, float] = field(default_factory=lambda: {"keeper": 0.0, "overtaker": 0.0})
     speed_steps: dict[str, int] = field(default_factory=lambda: {"keeper": 0, "overtaker": 0})
+    ended: dict[str, int] = field(default_factory=lambda: dict.fromkeys(END_REASONS, 0))
+    long_standstills: int = 0  # agents that stood still for LONG_STANDSTILL_S or more at a time
+    longest_standstill_s: float = 0.0
     phases: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -166,7 +236,110 @@ class PopulateSummary:
         for name in ("keeper", "overtaker"):
             if self.speed_steps[name]:
                 out[f"{name}_mean_speed"] = self.speed_sum[name] / self.speed_steps[name]
+        out.update({f"agents_{reason}": n for reason, n in self.ended.items()})
+        out[f"agents_standing_{LONG_STANDSTILL_S:.0f}s"] = self.long_standstills
+        out["longest_standstill_s"] = self.longest_standstill_s
         return out
+
+    def count_agents(self, rows: list[AgentRow]) -> None:
+        """How the agents ended and stood, from the per-agent rows of the whole run."""
+        self.ended = dict.fromkeys(END_REASONS, 0)
+        for row in rows:
+            self.ended[row.end_reason] += 1
+        standstills = [row.longest_standstill_s for row in rows]
+        self.long_standstills = sum(t >= LONG_STANDSTILL_S for t in standstills)
+        self.longest_standstill_s = max(standstills, default=0.0)
+
+
+END_REASONS = ("arrived", "collision", "off_track", "no_progress", "still_driving")
+"""How an agent's run ends: at the end of its route, crashed, off the carriageway, taken out by
+SUMO without arriving (stuck, no progress), or still on the road when the run ends."""
+STANDSTILL_SPEED = 0.1
+"""m/s: SUMO speeds below this count as standing still."""
+LONG_STANDSTILL_S = 30.0
+"""Standing still this long at a time is reported (a car waiting at a light, or stuck)."""
+AGENT_COLUMNS = ("id", "behaviour", "vtype", "depart_s", "end_s", "end_reason", "distance_m",
+                 "longest_standstill_s")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class AgentRow:
+    """One learned agent's run: a line of `<fcd stem>.agents.csv`."""
+
+    id: str
+    behaviour: str
+    vtype: str
+    depart_s: float
+    end_s: float
+    end_reason: str
+    distance_m: float
+    longest_standstill_s: float
+
+
+class AgentLog:
+    """What each learned agent did according to SUMO (its speed after each step), from insertion
+    to its end. Rows follow the fleet's: agents join and leave with it."""
+
+    def __init__(self, step_length: float) -> None:
+        self.dt = step_length
+        self.ids: list[str] = []
+        self.behaviour: list[str] = []
+        self.depart = np.zeros(0)
+        self.distance = np.zeros(0)  # SUMO's speed x step: its odometer under its Euler update
+        self.standing = np.zeros(0)  # seconds standing still up to now
+        self.longest = np.zeros(0)
+        self.ended: list[AgentRow] = []
+
+    def join(self, ids: list[str], behaviour: list[str], time: float) -> None:
+        zeros = np.zeros(len(ids))
+        self.ids, self.behaviour = self.ids + ids, self.behaviour + behaviour
+        self.depart = np.concatenate([self.depart, zeros + time])
+        self.distance = np.concatenate([self.distance, zeros])
+        self.standing = np.concatenate([self.standing, zeros])
+        self.longest = np.concatenate([self.longest, zeros])
+
+    def observe(self, present: np.ndarray, speed: np.ndarray) -> None:
+        """SUMO's speeds after a step of the agents it still has (`present` rows, in order)."""
+        self.distance[present] += speed * self.dt
+        standing = self.standing[present]
+        self.standing[present] = np.where(speed < STANDSTILL_SPEED, standing + self.dt, 0.0)
+        np.maximum(self.longest, self.standing, out=self.longest)
+
+    def end(self, reasons: np.ndarray, time: float) -> None:
+        """Close the rows whose reason is not empty and drop them (as the fleet drops them)."""
+        ending = reasons != ""
+        for k in np.flatnonzero(ending):
+            self.ended.append(self._row(int(k), str(reasons[k]), time))
+        keep = ~ending
+        self.ids = [v for v, k in zip(self.ids, keep.tolist(), strict=True) if k]
+        self.behaviour = [b for b, k in zip(self.behaviour, keep.tolist(), strict=True) if k]
+        self.depart, self.distance = self.depart[keep], self.distance[keep]
+        self.standing, self.longest = self.standing[keep], self.longest[keep]
+
+    def rows(self, time: float) -> list[AgentRow]:
+        """Every agent of the run, those still on the road ending `still_driving` at `time`."""
+        return self.ended + [self._row(k, "still_driving", time) for k in range(len(self.ids))]
+
+    def _row(self, k: int, reason: str, time: float) -> AgentRow:
+        vtype = OVERTAKER_TYPE if self.behaviour[k] == "overtaker" else KEEPER_TYPE
+        return AgentRow(
+            self.ids[k], self.behaviour[k], vtype, round(float(self.depart[k]), 3), round(time, 3), reason,
+            round(float(self.distance[k]), 2), round(float(self.longest[k]), 3),
+        )  # fmt: skip
+
+
+def agents_csv_path(fcd: Path) -> Path:
+    """Where the per-agent table goes: beside the FCD, `<fcd stem>.agents.csv`."""
+    return fcd.with_name(f"{fcd.stem}.agents.csv")
+
+
+def write_agents_csv(path: Path, rows: list[AgentRow]) -> None:
+    """The per-agent table, complete or absent (temp file + rename)."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(AGENT_COLUMNS)
+    writer.writerows(astuple(row) for row in rows)
+    atomic_write_text(path, out.getvalue())
 
 
 class Population:
@@ -182,6 +355,8 @@ class Population:
         self.timer = PhaseTimer()
         self.fleet = Fleet(self.geometry, CarModel(), config.step_length, self.timer, config.shield)
         self.summary = PopulateSummary()
+        self.log = AgentLog(config.step_length)
+        self.routes: RoutePool | None = None  # made with the simulation it hands routes to
         self.counter = {"keeper": 0, "overtaker": 0, "background": 0}
         self.pending: dict[str, str] = {}  # vehicle id -> kind, added but not yet on the road
         self.background_ids: set[str] = set()
@@ -207,26 +382,25 @@ class Population:
             SimOptions(net=c.net, additional=(vtypes,), routes=routes, step_length=c.step_length,
                        seed=c.seed, extra=extra)
         )  # fmt: skip
+        self.routes = RoutePool(self.graph, c.duration * 50.0, self.sim.add_route)
         self.insert("overtaker", c.overtakers)
         self.insert("keeper", c.keepers)
         self.insert("background", c.background)
 
     def insert(self, kind: str, count: int) -> None:
         """Ask SUMO for `count` new vehicles of a kind on random multi-lane routes, at free places."""
-        sim = self.sim
-        assert sim is not None
+        sim, routes = self.sim, self.routes
+        assert sim is not None and routes is not None
         vtype = {"keeper": KEEPER_TYPE, "overtaker": OVERTAKER_TYPE, "background": BACKGROUND_TYPE}[kind]
         for _ in range(count):
             vid = f"{kind}_{self.counter[kind]}"
             self.counter[kind] += 1
-            edges = random_route(self.graph, self.rng, self.config.duration * 50.0)
-            sim.add_route(f"route_{vid}", edges)
-            sim.add_free_vehicle(vid, f"route_{vid}", vtype)
+            sim.add_free_vehicle(vid, routes.draw(self.rng), vtype)
             if kind != "background":
                 sim.take_control([vid])
             self.pending[vid] = kind
 
-    def _admit(self, present: dict[str, int]) -> None:
+    def _admit(self, present: dict[str, int], time: float) -> None:
         """Pending vehicles that SUMO placed join; the others are withdrawn and retried."""
         sim = self.sim
         assert sim is not None
@@ -236,6 +410,7 @@ class Population:
         if agents:
             behaviour = np.array([1.0 if self.pending[v] == "overtaker" else 0.0 for v in agents])
             self.fleet.add(agents, sim.read_speeds(agents), behaviour)
+            self.log.join(agents, [self.pending[v] for v in agents], time)
         self.background_ids.update(v for v in joined if self.pending[v] == "background")
         self.summary.vehicles += len(joined)
         kinds = [self.pending[v] for v in failed]
@@ -260,15 +435,18 @@ class Population:
             off_track = actuation.off_track
             self.summary.side_cuts += int(actuation.side_cut.sum())
             self.summary.speed_cuts += int(actuation.speed_cut.sum())
-            self._record_speeds()
         with self.timer.phase("sumo"):
             sim.step()
         with self.timer.phase("read"):
             contact = sim.collisions()
             arrived = sim.arrived()
             vehicles = sim.read_vehicles(with_distance=False)  # no race here: positions suffice
+            now = sim.time
         crashed = fleet.involved(vehicles, contact)
         gone = fleet.locate(vehicles) < 0
+        if len(fleet):
+            self._observe_agents(~gone)
+        self.log.end(end_reasons(crashed, off_track, gone, self._arrived(gone, arrived)), now)
         leaving = crashed | off_track | gone
         self.summary.collisions += int(crashed.sum())
         self.summary.off_tracks += int((off_track & ~crashed).sum())
@@ -282,23 +460,53 @@ class Population:
         # background cars leave at the end of their route, or wrecked
         left_background = {v for v in arrived if v in self.background_ids}.union(wrecked_background)
         self.background_ids -= left_background
-        self._admit(self.vehicles.row)
+        self._admit(self.vehicles.row, now)
         if c.keep_count:
             for kind in ("keeper", "overtaker"):
                 self.insert(kind, sum(v.startswith(kind) for v in left))
             self.insert("background", len(left_background))
         self.summary.simulated_s += c.step_length
 
-    def _record_speeds(self) -> None:
-        overtaker = self.fleet.behaviour_id == 1.0
+    def _observe_agents(self, present: np.ndarray) -> None:
+        """SUMO's speed of each agent it still has, not the one commanded: SUMO may hold a car back
+        (a lane that does not lead on stops it dead) whatever the policy asks."""
+        assert self.sim is not None
+        ids = self.fleet.ids
+        with self.timer.phase("read"):
+            speed = self.sim.read_speeds(ids if present.all() else [ids[k] for k in np.flatnonzero(present)])
+        self.log.observe(present, speed)
+        overtaker = self.fleet.behaviour_id[present] == 1.0
         for name, mask in (("overtaker", overtaker), ("keeper", ~overtaker)):
-            self.summary.speed_sum[name] += float(self.fleet.speed[mask].sum())
+            self.summary.speed_sum[name] += float(speed[mask].sum())
             self.summary.speed_steps[name] += int(mask.sum())
+
+    def _arrived(self, gone: np.ndarray, arrived: set[str]) -> np.ndarray:
+        """Which agents SUMO took out this step because they reached the end of their route."""
+        ids = self.fleet.ids
+        out = np.zeros(len(ids), bool)
+        for k in np.flatnonzero(gone):
+            out[k] = ids[k] in arrived
+        return out
+
+    def agent_rows(self) -> list[AgentRow]:
+        """Every agent of the run so far, with how it ended."""
+        assert self.sim is not None
+        return self.log.rows(self.sim.time)
 
     def close(self) -> None:
         if self.sim is not None:
             self.sim.close()
             self.sim = None
+
+
+def end_reasons(
+    crashed: np.ndarray, off_track: np.ndarray, gone: np.ndarray, arrived: np.ndarray
+) -> np.ndarray:
+    """Each agent's end this step ("" = drives on); a crash counts before leaving the track, and an
+    agent SUMO took out without arriving counts as no progress."""
+    return np.select(
+        [crashed, gone & arrived, off_track, gone], ["collision", "arrived", "off_track", "no_progress"], ""
+    )
 
 
 PRECISIONS = ("auto", "float32", "bfloat16")
@@ -399,7 +607,8 @@ def finish_fcd(partial: Path, final: Path, config: PopulateConfig) -> None:
 
 
 def populate(config: PopulateConfig, on_step: Callable[[float], None] | None = None) -> PopulateSummary:
-    """Run the whole simulation; the FCD file appears only if the run completed."""
+    """Run the whole simulation; the FCD file and the per-agent table beside it appear only if the
+    run completed."""
     config.validate()
     ensure_writable_dir(config.fcd.parent)
     torch.set_num_threads(POLICY_THREADS)
@@ -413,8 +622,11 @@ def populate(config: PopulateConfig, on_step: Callable[[float], None] | None = N
             population.step()
             if on_step:
                 on_step(population.summary.simulated_s)
+        agents = population.agent_rows()
         population.close()
         finish_fcd(partial, config.fcd, config)
+        write_agents_csv(agents_csv_path(config.fcd), agents)
+        population.summary.count_agents(agents)
     finally:
         population.close()
         for leftover in (partial, partial.with_name(partial.name + ".staged")):

@@ -10,7 +10,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from behaviors.populate import DEFAULT_POLICY, PopulateConfig, populate
+from behaviors.populate import DEFAULT_POLICY, PopulateConfig, agents_csv_path, populate
 
 DEFAULTS = PopulateConfig()
 
@@ -75,10 +75,13 @@ def populate_command(
     for key, value in summary.as_dict().items():
         text = f"{value:,.2f}" if isinstance(value, float) else f"{value:,}"
         if key.endswith("mean_speed"):
-            text = f"{value:.1f} m/s ({3.6 * value:.0f} km/h)"
+            text = f"{value:.1f} m/s ({3.6 * value:.0f} km/h) from SUMO"
+        if key == "longest_standstill_s":
+            text = f"{value:.1f} s"
         table.add_row(key.replace("_", " "), text)
     Console().print(table)
     typer.echo(f"FCD written to {fcd}")
+    typer.echo(f"per-agent table written to {agents_csv_path(fcd)}")
     if plot is not None:
         from behaviors.export import read_fcd
         from behaviors.plot import plot_fcd
