@@ -41,6 +41,7 @@ class Actuation:
     off_track: np.ndarray  # [N] bool: the move would have crossed the carriageway border
     side_cut: np.ndarray  # [N] bool: the sideways move was cut by `side_limit`
     speed_cut: np.ndarray  # [N] bool: the speed was cut by `speed_cap`
+    lateral_speed: np.ndarray | None = None  # [N] m/s towards the fast side (traffic model only)
 
 
 def actuate(
@@ -93,3 +94,66 @@ def actuate(
     move = np.clip(target, -room, room) - offset
     lane_speed = np.maximum(new_speed * np.cos(new_angle), 0.0)
     return Actuation(new_speed, new_angle, lane_speed, move, off_track, side_cut, speed_cut)
+
+
+@dataclass(frozen=True)
+class LaneDriving:
+    """Lateral limits of the `traffic` driver model: steer sets a lateral speed, not a heading.
+
+    SUMO's sublane model has no heading: `changeSublane(0)` follows the lane, so in the
+    traffic model steer 0 holds the car's place in its lane (on curves too) and steer +-1
+    asks for `max_lateral_speed` towards the fast/slow side, reached at most at
+    `max_lateral_accel` (a firm lane change; SUMO's own drivers default to 1 m/s^2 with
+    `lcAccelLat`). The paper's heading model (`actuate`) stays for the paper's policies.
+    """
+
+    max_lateral_speed: float = 1.5  # m/s: 3.5 m lane in about 3 s at full steer
+    max_lateral_accel: float = 2.0  # m/s^2
+    max_slip: float = 0.25  # lateral speed at most this fraction of the forward speed
+
+
+def actuate_lanes(
+    actions: np.ndarray,
+    speed: np.ndarray,
+    lateral_speed: np.ndarray,
+    offset: np.ndarray,
+    half_width: np.ndarray,
+    speed_limit: np.ndarray,
+    dt: float,
+    car: CarModel,
+    lateral: LaneDriving,
+    fast_side_sign: float = 1.0,
+    side_limit: np.ndarray | None = None,
+    speed_cap: np.ndarray | None = None,
+) -> Actuation:
+    """One control step of the traffic model for all agents.
+
+    `lateral_speed` is + towards the fast side; `offset`, `side_limit` and the returned
+    `lateral_move` are geometric (+ = left), as in `actuate`. `angle` in the result is the
+    direction of travel relative to the lane, atan(lateral speed / speed), fast side +.
+    """
+    steer = np.clip(actions[:, 0], -1.0, 1.0)
+    accel = np.clip(actions[:, 1], 0.0, 1.0)
+    brake = np.clip(actions[:, 2], 0.0, 1.0)
+    new_speed = np.clip(speed + (car.max_accel * accel - car.max_brake * brake) * dt, 0.0, speed_limit)
+    speed_cut = np.zeros(len(new_speed), bool)
+    if speed_cap is not None:
+        speed_cut = new_speed > speed_cap
+        new_speed = np.where(speed_cut, np.maximum(speed_cap, 0.0), new_speed)
+    reach = np.minimum(lateral.max_lateral_speed, lateral.max_slip * new_speed)
+    wanted = steer * reach
+    step = lateral.max_lateral_accel * dt
+    new_lateral = np.clip(lateral_speed + np.clip(wanted - lateral_speed, -step, step), -reach, reach)
+    move = new_lateral * dt * fast_side_sign
+    side_cut = np.zeros(len(move), bool)
+    if side_limit is not None:
+        limited = np.clip(move, -side_limit[:, 1], side_limit[:, 0])
+        side_cut = limited != move
+        move = limited
+        new_lateral = np.where(side_cut, move / dt * fast_side_sign, new_lateral)
+    room = half_width - car.width / 2
+    target = offset + move
+    off_track = np.abs(target) > room
+    move = np.clip(target, -room, room) - offset
+    angle = np.arctan2(new_lateral, np.maximum(new_speed, 0.1))
+    return Actuation(new_speed, angle, new_speed, move, off_track, side_cut, speed_cut, new_lateral)

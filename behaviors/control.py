@@ -13,13 +13,20 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from behaviors.actuation import Actuation, CarModel, actuate
+from behaviors.actuation import Actuation, CarModel, LaneDriving, actuate, actuate_lanes
 from behaviors.geometry import RoadGeometry
+from behaviors.lanes import LaneAgents, Surroundings, observe_lanes
+from behaviors.lanes import surroundings as lane_surroundings
 from behaviors.rewards import NO_PROGRESS_SPEED
 from behaviors.sensors import AgentFrame, observe
 from behaviors.shield import safe_speed, search_reach, side_limits, surroundings
 from behaviors.sim import AgentReadings, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
+
+DRIVERS = ("paper", "traffic")
+JUNCTION_LEADS_ON = 1e4
+"""m: inside a junction every lane counts as leading on; SUMO is asked again on the next lane."""
+"""Driver models: the paper's TORCS state, reward and heading model, or lanes.py's traffic driver."""
 
 
 @dataclass(frozen=True)
@@ -34,6 +41,7 @@ class RoadFrame:
     speed_limit: np.ndarray  # [N] m/s
     on_normal_edge: np.ndarray  # [N] bool, False inside junctions
     lane_deviation: np.ndarray  # [N] |offset from the lane centre| / half the lane width, 1 = on a line
+    lane_row: np.ndarray  # [N] row of the agent's lane in the geometry's lane tables
 
 
 def road_frame(
@@ -60,6 +68,7 @@ def road_frame(
         speed_limit=geometry.lane_speed[rows],
         on_normal_edge=geometry.lane_normal[rows],
         lane_deviation=np.abs(readings.lateral_pos) / (width / 2),
+        lane_row=rows,
     )
 
 
@@ -78,6 +87,15 @@ class AgentRows:
     frame: RoadFrame | None = None
     side_limit: np.ndarray | None = None  # [N, 2] from the last sensing, when shielded
     speed_cap: np.ndarray | None = None  # [N] from the last sensing, when shielded
+    # traffic driver only (see lanes.py): set by `add` and `sense`
+    desired_fraction: np.ndarray = field(default_factory=lambda: np.zeros(0))  # of the local speed limit
+    lateral_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
+    lane_number: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # -1 = not sensed yet
+    lane_count: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    lane_changed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # at the last sensing
+    lane_id: list[str] = field(default_factory=list)  # lane of the cached lane ends
+    lane_ends: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # own/fast/slow, lane coords
+    around: Surroundings | None = None
 
     def take(self, mask: np.ndarray) -> AgentRows:
         """The rows where `mask` is True, of every field."""
@@ -88,8 +106,8 @@ def take_rows(value, mask: np.ndarray):
     """`value`'s rows where `mask` is True; None stays None, a RoadFrame is taken field by field."""
     if value is None:
         return None
-    if isinstance(value, RoadFrame):
-        return RoadFrame(*(take_rows(getattr(value, f.name), mask) for f in fields(RoadFrame)))
+    if isinstance(value, RoadFrame | Surroundings):
+        return type(value)(*(take_rows(getattr(value, f.name), mask) for f in fields(value)))
     if len(value) != len(mask):
         raise ValueError(f"per-agent value has {len(value)} rows, the mask {len(mask)}")
     if isinstance(value, list):
@@ -101,9 +119,20 @@ class Fleet:
     """State and stepping of N learned agents (row i = `ids[i]`), vectorised."""
 
     def __init__(
-        self, geometry: RoadGeometry, car: CarModel, dt: float, timer: PhaseTimer, shield: bool = False
+        self,
+        geometry: RoadGeometry,
+        car: CarModel,
+        dt: float,
+        timer: PhaseTimer,
+        shield: bool = False,
+        driver: str = "paper",
     ) -> None:
-        """`shield`: keep agents off the cars beside and ahead of them (populate only, see shield.py)."""
+        """`shield`: keep agents off the cars beside and ahead of them (populate only, see shield.py).
+        `driver`: "paper" (TORCS state and heading model) or "traffic" (lanes.py, `actuate_lanes`)."""
+        if driver not in DRIVERS:
+            raise ValueError(f"unknown driver model {driver!r}")
+        self.driver = driver
+        self.lateral = LaneDriving()
         self.timer = timer
         self.shield = shield
         self.geometry = geometry
@@ -123,15 +152,32 @@ class Fleet:
     frame = property(lambda self: self.rows.frame)
     vehicle_rows = property(lambda self: self.rows.vehicle_rows)
 
-    def add(self, ids: list[str], speed: np.ndarray, behaviour_id: np.ndarray) -> None:
-        """New agents at the end; their derived rows come with the next `sense`."""
-        r, zeros = self.rows, np.zeros(len(ids))
+    def add(
+        self,
+        ids: list[str],
+        speed: np.ndarray,
+        behaviour_id: np.ndarray,
+        desired_fraction: np.ndarray | None = None,
+    ) -> None:
+        """New agents at the end; their derived rows come with the next `sense`.
+
+        `desired_fraction` (traffic driver): the share of the local speed limit each agent
+        holds when its lane is free."""
+        r, zeros, n = self.rows, np.zeros(len(ids)), len(ids)
+        desired = np.zeros(n) if desired_fraction is None else np.asarray(desired_fraction, float)
         self.rows = AgentRows(
             ids=r.ids + ids,
             speed=np.concatenate([r.speed, speed]),
             angle=np.concatenate([r.angle, zeros]),
             slow_time=np.concatenate([r.slow_time, zeros]),
             behaviour_id=np.concatenate([r.behaviour_id, behaviour_id.astype(np.float32)]),
+            desired_fraction=np.concatenate([r.desired_fraction, desired]),
+            lateral_speed=np.concatenate([r.lateral_speed, zeros]),
+            lane_number=np.concatenate([r.lane_number, np.full(n, -1, np.int64)]),
+            lane_count=np.concatenate([r.lane_count, np.zeros(n, np.int64)]),
+            lane_changed=np.concatenate([r.lane_changed, np.zeros(n, bool)]),
+            lane_id=r.lane_id + [""] * n,
+            lane_ends=np.concatenate([r.lane_ends, np.zeros((n, 3))]),
         )
 
     def keep(self, mask: np.ndarray) -> None:
@@ -177,7 +223,10 @@ class Fleet:
                 raise RuntimeError("Fleet.sense with agents SUMO no longer has: keep() them out first")
             self.rows.vehicle_rows = rows
         with self.timer.phase("sensors"):
-            obs = self._observe(readings, vehicles, rows, with_id)
+            if self.driver == "traffic":
+                obs = self._observe_lanes(sim, readings, vehicles, rows)
+            else:
+                obs = self._observe(readings, vehicles, rows, with_id)
         if self.shield:
             with self.timer.phase("shield"):
                 self._shield(sim, vehicles, rows)
@@ -196,6 +245,55 @@ class Fleet:
             track_pos=np.clip(frame.offset / frame.half_width, -1.0, 1.0),
         )
         return observe(agents, centres, rows, self.geometry, r.behaviour_id if with_id else None)
+
+    def _observe_lanes(
+        self, sim: SumoSim, readings: AgentReadings, vehicles: VehicleState, rows: np.ndarray
+    ) -> np.ndarray:
+        """The traffic observation (lanes.py); also keeps what the traffic reward needs."""
+        r, g = self.rows, self.geometry
+        r.frame = frame = road_frame(g, readings, vehicles.position[rows], r.angle, self.car)
+        number = g.lane_number[frame.lane_row]
+        count = g.lane_num_lanes[frame.lane_row]
+        normal = frame.on_normal_edge
+        r.lane_changed = (r.lane_number >= 0) & (number != r.lane_number) & (count == r.lane_count) & normal
+        r.lane_number = np.where(normal, number, r.lane_number)
+        r.lane_count = np.where(normal, count, r.lane_count)
+        self._refresh_lane_ends(sim, readings)
+        agents = LaneAgents(
+            front=vehicles.position[rows],
+            road_heading=frame.heading - r.angle,
+            curvature=frame.curvature,
+            speed=r.speed,
+            lateral_speed=r.lateral_speed,
+            desired_speed=r.desired_fraction * frame.speed_limit,
+            speed_limit=frame.speed_limit,
+            lane_offset=readings.lateral_pos,
+            lane_width=g.lane_width[frame.lane_row],
+            lane_number=number,
+            lanes=count,
+            lane_leads_on=r.lane_ends - readings.lane_pos[:, None],
+            behaviour_id=r.behaviour_id,
+        )
+        speeds = sim.read_speeds(vehicles.ids)
+        speeds[rows] = r.speed
+        r.around = around = lane_surroundings(agents, vehicles.position, speeds, rows)
+        return observe_lanes(agents, around)
+
+    def _refresh_lane_ends(self, sim: SumoSim, readings: AgentReadings) -> None:
+        """Where the own and neighbouring lanes stop leading on, asked of SUMO only when an agent
+        entered a new lane (a few agents per step), kept in lane coordinates otherwise."""
+        r = self.rows
+        for i, lane in enumerate(readings.lane_id):
+            if lane == r.lane_id[i]:
+                continue
+            r.lane_id[i] = lane
+            if lane.startswith(":"):  # a junction leads on to the lane SUMO routes it to
+                r.lane_ends[i] = readings.lane_pos[i] + JUNCTION_LEADS_ON
+                continue
+            ahead = sim.lane_lengths_ahead(r.ids[i])
+            edge, _, index = lane.rpartition("_")
+            k = int(index)
+            r.lane_ends[i] = [ahead.get(f"{edge}_{j}", 0.0) for j in (k, k + 1, k - 1)]
 
     def _shield(self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray) -> None:
         """Side limits and speed caps for the next action; reads the speed of SUMO cars leading agents."""
@@ -226,10 +324,18 @@ class Fleet:
         if f is None:
             raise RuntimeError("Fleet.act before Fleet.sense")
         with self.timer.phase("actuation"):
-            result = actuate(
-                actions, r.speed, r.angle, f.offset, f.half_width, f.curvature, f.speed_limit,
-                self.dt, self.car, r.side_limit, r.speed_cap,
-            )  # fmt: skip
+            if self.driver == "traffic":
+                result = actuate_lanes(
+                    actions, r.speed, r.lateral_speed, f.offset, f.half_width, f.speed_limit,
+                    self.dt, self.car, self.lateral, 1.0, r.side_limit, r.speed_cap,
+                )  # fmt: skip
+                assert result.lateral_speed is not None
+                r.lateral_speed = result.lateral_speed
+            else:
+                result = actuate(
+                    actions, r.speed, r.angle, f.offset, f.half_width, f.curvature, f.speed_limit,
+                    self.dt, self.car, r.side_limit, r.speed_cap,
+                )  # fmt: skip
             sim.command_agents(r.ids, result.lane_speed, result.lateral_move)
         r.angle = result.angle
         self.record_speed(result.speed)

@@ -16,9 +16,10 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from behaviors.actuation import CarModel
-from behaviors.control import Fleet
+from behaviors.control import DRIVERS, Fleet
 from behaviors.errors import BehaveError
 from behaviors.geometry import RoadGeometry, load_geometry
+from behaviors.lanes import TRAFFIC_OBS_SIZE
 from behaviors.rewards import (
     NO_PROGRESS_SECONDS,
     RewardTerms,
@@ -35,11 +36,14 @@ PLACEMENTS = ("A", "B", "C")
 KEEPER_TYPE = "behave_keeper"
 OVERTAKER_TYPE = "behave_overtaker"
 PASSIVE_TYPE = "behave_passive"
+BACKGROUND_TYPE = "behave_background"
 PASSIVE_SPEED = 20.0
 """m/s: maxSpeed of the behave_passive vType (the slower cars to overtake)."""
 START_SPEED_FRACTION = 0.7
 START_HEADWAY = 1.5
 """Seconds of headway between start places at speed (plus two car lengths)."""
+TRAINING_ROADS = "roads"
+"""Scenario name of the family of closed roads the traffic driver trains on (sumo_scenarios)."""
 ROUTE_SECONDS = 3600.0
 """Looping routes are unrolled for at least this much driving at 50 m/s."""
 
@@ -63,6 +67,8 @@ class EnvConfig:
     sumo_drives: bool = False  # reference baseline: SUMO's Krauss + SL2015 drive the "agents"
     lane_weight: float = 0.0  # lane-discipline reward term (0 = the paper's reward), see rewards.py
     shield: bool = False  # populate's safety shield (shield.py): to evaluate a policy as populate drives it
+    driver: str = "paper"  # "paper": TORCS state + the paper's reward; "traffic": lanes among SUMO traffic
+    traffic_density: tuple[float, float] = (4.0, 20.0)  # traffic driver: SUMO cars per lane-km, drawn
     car: CarModel = field(default_factory=CarModel)
 
     def validate(self) -> None:
@@ -70,7 +76,11 @@ class EnvConfig:
             raise BehaveError(f"unknown behaviour '{self.behaviour}' (choose from {', '.join(BEHAVIOURS)})")
         if self.placement not in PLACEMENTS:
             raise BehaveError(f"unknown placement '{self.placement}' (choose from {', '.join(PLACEMENTS)})")
-        if isinstance(self.scenario, str) and self.scenario not in SCENARIO_NAMES:
+        if self.driver not in DRIVERS:
+            raise BehaveError(f"unknown driver '{self.driver}' (choose from {', '.join(DRIVERS)})")
+        if self.driver == "traffic" and self.scenario not in (TRAINING_ROADS, "ring"):
+            raise BehaveError(f"the traffic driver trains on '{TRAINING_ROADS}' or 'ring' (closed roads)")
+        if isinstance(self.scenario, str) and self.scenario not in (*SCENARIO_NAMES, TRAINING_ROADS):
             get_scenario(self.scenario)  # raises with the list of choices
         if self.behaviour == "multi":
             if self.overtakers < 0 or self.keepers < 0 or self.overtakers + self.keepers == 0:
@@ -87,6 +97,9 @@ class EnvConfig:
             raise BehaveError(f"start speed must be >= 0, got {self.start_speed}")
         if (self.opponents or 0) < 0:
             raise BehaveError(f"opponents must be >= 0, got {self.opponents}")
+        low, high = self.traffic_density
+        if not (np.isfinite(low) and np.isfinite(high) and 0 <= low <= high):
+            raise BehaveError(f"traffic density must be a range 0 <= low <= high, got {self.traffic_density}")
         if self.lane_weight < 0:
             raise BehaveError(f"lane weight must be >= 0, got {self.lane_weight}")
 
@@ -105,6 +118,8 @@ class EnvConfig:
 
     @property
     def obs_size(self) -> int:
+        if self.driver == "traffic":
+            return TRAFFIC_OBS_SIZE
         return OBS_SIZE_WITH_ID if self.behaviour == "multi" else OBS_SIZE
 
     def behaviour_ids(self) -> np.ndarray:
@@ -499,6 +514,15 @@ def observation_space(size: int) -> spaces.Box:
     return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
 
 
+def observation_space_traffic() -> spaces.Box:
+    """Bounds of the traffic observation (lanes.TRAFFIC_LAYOUT): every value within [-1.5, 1.5]."""
+    return spaces.Box(
+        np.full(TRAFFIC_OBS_SIZE, -1.5, np.float32),
+        np.full(TRAFFIC_OBS_SIZE, 1.5, np.float32),
+        dtype=np.float32,
+    )
+
+
 def action_space() -> spaces.Box:
     """steer in [-1, 1], accel in [0, 1], brake in [0, 1]."""
     return spaces.Box(np.array([-1, 0, 0], np.float32), np.array([1, 1, 1], np.float32), dtype=np.float32)
@@ -519,9 +543,13 @@ def make_env(
     start_speed: float | None = None,
     lane_weight: float = 0.0,
     shield: bool = False,
+    driver: str = "paper",
 ) -> BehaveEnv:
-    """A native PettingZoo ParallelEnv with a batched array interface for trainers."""
-    return BehaveEnv(
+    """A native PettingZoo ParallelEnv with a batched array interface for trainers.
+
+    `driver="traffic"` (scenario "roads" or "ring"): agents among SUMO's traffic with the lane
+    observation and the traffic reward (see traffic_env.py)."""
+    return create_env(
         EnvConfig(
             scenario=scenario,
             behaviour=behaviour,
@@ -536,5 +564,15 @@ def make_env(
             start_speed=start_speed,
             lane_weight=lane_weight,
             shield=shield,
+            driver=driver,
         )
     )
+
+
+def create_env(config: EnvConfig) -> BehaveEnv:
+    """The environment a config describes: the paper's scenarios, or agents among traffic."""
+    if config.driver == "traffic":
+        from behaviors.traffic_env import TrafficEnv
+
+        return TrafficEnv(config)
+    return BehaveEnv(config)

@@ -86,3 +86,127 @@ def step_rewards(
         off_track=np.where(off_track, OFF_TRACK_PENALTY, 0.0),
         no_progress=np.where(no_progress, NO_PROGRESS_PENALTY, 0.0),
     )
+
+
+# --- the traffic reward: driving behaviour as named terms -------------------------------
+
+TRAFFIC_TERM_NAMES = (
+    "speed",
+    "headway",
+    "closing",
+    "centre",
+    "lane_change",
+    "keep_slow_side",
+    "pass_slow_side",
+    "comfort",
+    "collision",
+    "off_track",
+    "no_progress",
+)
+
+
+@dataclass(frozen=True)
+class TrafficWeights:
+    """Weights and thresholds of the traffic reward; one step's terms are about [-1, 1].
+
+    Keepers and overtakers share one formula (parameter sharing) and differ only through the
+    behaviour id: a keeper's speed is judged against what its lane allows (following a slower
+    car costs nothing) and a lane change costs it much more; an overtaker's speed is judged
+    against its desired speed (a slower leader is worth passing) and it is asked to return to
+    the slow side when that lane is free.
+    """
+
+    safe_headway: float = 1.5  # s: following closer than this costs, in proportion
+    safe_ttc: float = 4.0  # s: closing in faster than this costs, in proportion
+    headway: float = 2.0
+    closing: float = 1.0
+    centre: float = 0.3  # per half lane width off the lane centre
+    lane_change_keeper: float = 4.0  # per lane change
+    lane_change_overtaker: float = 0.5
+    keep_slow_side: float = 0.15  # per step in a lane with a free lane on the slow side
+    pass_slow_side: float = 1.0  # per step passing a car on its slow side, at 5 m/s faster
+    comfort: float = 0.3  # per (lateral acceleration / 1.5 m/s^2)^2
+    comfort_longitudinal: float = 0.05  # per (acceleration / 3 m/s^2)^2
+    crash: float = 20.0  # collision or off-track
+    no_progress: float = 10.0
+    free_headway: float = 3.0  # s: a leader farther than this does not limit a keeper's speed
+    free_slow_lane: float = 60.0  # m: the slow-side lane counts as free beyond max(this, 3 s at speed)
+    passing_zone: float = 20.0  # m: a fast-side leader this close is being passed
+
+
+@dataclass(frozen=True)
+class TrafficStep:
+    """What the traffic reward needs of one step, per agent (m, m/s, s)."""
+
+    speed: np.ndarray
+    desired_speed: np.ndarray
+    acceleration: np.ndarray  # along the road, m/s^2
+    lateral_acceleration: np.ndarray  # m/s^2
+    lane_deviation: np.ndarray  # |offset from the lane centre| / half the lane width
+    lane_changed: np.ndarray  # bool: crossed a lane line this step
+    behaviour_id: np.ndarray  # 0 keeper, 1 overtaker
+    gap: np.ndarray  # [N, 6] as lanes.Surroundings.gap
+    other_speed: np.ndarray  # [N, 6] as lanes.Surroundings.other_speed
+    collided: np.ndarray
+    off_track: np.ndarray
+    no_progress: np.ndarray
+
+
+@dataclass(frozen=True)
+class TrafficTerms:
+    """Per-agent terms of one step; `total` is their sum."""
+
+    values: dict[str, np.ndarray]
+
+    @property
+    def total(self) -> np.ndarray:
+        return np.sum([self.values[name] for name in TRAFFIC_TERM_NAMES], axis=0)
+
+    @property
+    def progress(self) -> np.ndarray:
+        """The speed term: what training logs as progress for the traffic driver."""
+        return self.values["speed"]
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        return dict(self.values)
+
+
+def traffic_rewards(step: TrafficStep, w: TrafficWeights) -> TrafficTerms:
+    v = step.speed
+    overtaker = step.behaviour_id > 0.5
+    lead_gap, lead_speed = step.gap[:, 0], step.other_speed[:, 0]
+    has_lead = np.isfinite(lead_gap) & ~np.isnan(lead_speed)
+    moving = np.maximum(v, 1.0)
+    headway_s = np.where(has_lead, lead_gap / moving, np.inf)
+    lane_allows = np.where(
+        has_lead & (headway_s < w.free_headway),
+        np.minimum(step.desired_speed, lead_speed),
+        step.desired_speed,
+    )
+    target = np.where(overtaker, step.desired_speed, lane_allows)
+    speed = 1.0 - np.abs(v - target) / np.maximum(target, 1.0)
+    closing_speed = np.where(has_lead, v - np.nan_to_num(lead_speed), 0.0)
+    ttc = np.where(closing_speed > 0.1, lead_gap / np.maximum(closing_speed, 0.1), np.inf)
+    slow_gap, slow_follow_gap = step.gap[:, 4], step.gap[:, 5]
+    slow_lane_free = (slow_gap > np.maximum(w.free_slow_lane, 3.0 * v)) & (
+        slow_follow_gap > np.maximum(10.0, v)
+    )
+    fast_gap, fast_speed = step.gap[:, 2], step.other_speed[:, 2]
+    passing = (fast_gap < w.passing_zone) & ~np.isnan(fast_speed)
+    undertaking = np.where(passing, np.clip((v - np.nan_to_num(fast_speed)) / 5.0, 0.0, 1.0), 0.0)
+    change_cost = np.where(overtaker, w.lane_change_overtaker, w.lane_change_keeper)
+    values = {
+        "speed": np.clip(speed, -1.0, 1.0),
+        "headway": -w.headway * np.clip((w.safe_headway - headway_s) / w.safe_headway, 0.0, 1.0),
+        "closing": -w.closing * np.clip((w.safe_ttc - ttc) / w.safe_ttc, 0.0, 1.0),
+        "centre": -w.centre * np.minimum(step.lane_deviation, 1.0),
+        "lane_change": -change_cost * step.lane_changed,
+        "keep_slow_side": -w.keep_slow_side * (overtaker & slow_lane_free),
+        "pass_slow_side": -w.pass_slow_side * undertaking,
+        "comfort": -w.comfort * (step.lateral_acceleration / 1.5) ** 2
+        - w.comfort_longitudinal * (step.acceleration / 3.0) ** 2,
+        "collision": -w.crash * step.collided,
+        "off_track": -w.crash * step.off_track,
+        "no_progress": -w.no_progress * step.no_progress,
+    }
+    return TrafficTerms({k: np.asarray(x, float) for k, x in values.items()})

@@ -129,6 +129,12 @@ class SumoSim:
         self._sumo.load(options.command()[1:])
         self.options = options
 
+    def restart(self, options: SimOptions) -> None:
+        """Load another network (and files) into the running simulation: a new episode elsewhere."""
+        self._sumo.load(options.command()[1:])
+        self.options = options
+        self.step_length = options.step_length
+
     def close(self) -> None:
         with contextlib.suppress(Exception):  # already closed: closing twice is harmless
             self._sumo.close()
@@ -199,12 +205,22 @@ class SumoSim:
             departSpeed=repr(speed),
         )
 
-    def add_free_vehicle(self, vid: str, route: str, vtype: str) -> None:
-        """Insert a vehicle at a random free place of its route's first edge, at its desired speed."""
+    def add_free_vehicle(self, vid: str, route: str, vtype: str, speed: str = "desired") -> None:
+        """Insert a vehicle at a random free place of its route's first edge; `speed` is SUMO's
+        departSpeed ("desired", or "max": the highest speed that is safe where it is put)."""
         self._sumo.vehicle.add(
             vid, route, typeID=vtype, depart="now", departLane="random", departPos="random_free",
-            departSpeed="desired",
+            departSpeed=speed,
         )  # fmt: skip
+
+    def lane_lengths_ahead(self, vid: str) -> dict[str, float]:
+        """For each lane of `vid`'s edge: metres from that lane's start that can be driven on it
+        along the route without a lane change (SUMO's best lanes; a lane that does not lead on
+        has its own length)."""
+        return {lane[0]: lane[1] for lane in self._sumo.vehicle.getBestLanes(vid)}
+
+    def set_speed_factor(self, vid: str, factor: float) -> None:
+        self._sumo.vehicle.setSpeedFactor(vid, factor)
 
     def read_speeds(self, ids: Sequence[str]) -> np.ndarray:
         return np.fromiter(map(self._fast.getSpeed, ids), float, len(ids))

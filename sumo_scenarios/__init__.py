@@ -17,7 +17,16 @@ from behaviors.errors import BehaveError
 if TYPE_CHECKING:
     from sumolib.net.edge import Edge
 
-from sumo_scenarios.build import DESCRIPTIONS, VTYPES_FILE, Scenario, build_named, build_ring
+from sumo_scenarios.build import (
+    DESCRIPTIONS,
+    TRAINING_ROADS,
+    VTYPES_FILE,
+    Scenario,
+    build_named,
+    build_ring,
+    build_training_roads,
+    training_road_name,
+)
 
 __all__ = [
     "SCENARIO_NAMES",
@@ -29,6 +38,7 @@ __all__ = [
     "get_scenario",
     "route_edges",
     "scenario_info",
+    "training_roads",
 ]
 
 SCENARIO_NAMES: tuple[str, ...] = ("ring", "highway", "tiny")
@@ -123,4 +133,28 @@ def build_scenarios(out_root: Path | None = None, names: Iterable[str] = SCENARI
     for name in names:
         _check_name(name)
     root = data_dir() if out_root is None else Path(out_root)
-    return [build_named(name, root / name) for name in names]
+    built = [build_named(name, root / name) for name in names]
+    if set(names) == set(SCENARIO_NAMES):  # a full rebuild includes the training roads
+        built += build_training_roads(root)
+    return built
+
+
+def training_roads() -> list[Scenario]:
+    """The closed roads the traffic driver trains on (built by `build_training_roads`, committed)."""
+    roads = []
+    for lanes, width, radius in TRAINING_ROADS:
+        name = training_road_name(lanes, width, radius)
+        folder = data_dir() / name
+        road = Scenario(
+            name=name,
+            net=folder / f"{name}.net.xml",
+            routes=folder / f"{name}.rou.xml",
+            vtypes=data_dir() / "common" / VTYPES_FILE,
+            route_id="loop",
+            looping=True,
+            description=f"closed {lanes}-lane road, {width:g} m lanes, curves of {radius:.0f} m",
+        )
+        if not road.net.exists():
+            raise BehaveError(f"training road {name} is missing: run `behave scenario build`")
+        roads.append(road)
+    return roads

@@ -415,3 +415,32 @@ def build_named(name: str, out_dir: Path) -> Scenario:
             description=DESCRIPTIONS["tiny"],
         )
     raise BehaveError(f"no builder for scenario '{name}'")
+
+
+TRAINING_ROADS: tuple[tuple[int, float, float], ...] = (
+    (2, 3.2, 400.0),
+    (3, 3.5, 300.0),
+    (3, 3.0, 600.0),
+    (4, 3.75, 500.0),
+    (5, 3.5, 800.0),
+)
+"""(lanes, lane width m, curve radius m) of the closed roads the traffic driver trains on."""
+
+
+def training_road_name(lanes: int, lane_width: float, radius: float) -> str:
+    return f"road_{lanes}x{lane_width:g}_r{radius:.0f}"
+
+
+def build_training_roads(root: Path) -> list[Scenario]:
+    """The family of closed multi-lane roads (2-5 lanes, 3.0-3.75 m, curves of 300-800 m)
+    into root/<name>/: SUMO's cars circle them forever, so every episode has traffic."""
+    built = []
+    for lanes, width, radius in TRAINING_ROADS:
+        name = training_road_name(lanes, width, radius)
+        out_dir = root / name
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        built.append(
+            build_ring(out_dir, name=name, radius=radius, straight=600.0, lanes=lanes, lane_width=width)
+        )
+    return built

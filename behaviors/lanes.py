@@ -1,0 +1,211 @@
+"""What a driver in lanes needs to see: the `traffic` observation, for all agents at once.
+
+The paper's TORCS state knows the carriageway borders but not the lane lines, and one frame
+of opponent distances carries no closing speed: no policy can learn to hold a lane of its
+choice or to follow a slower car from it. This observation gives, per agent, its own lane
+(offset, width, lanes beside it, how far each lane leads on along the route), its speed
+against a desired speed, and for the leader and follower in its own and the two adjacent
+lanes their gap and relative speed.
+
+Sides are lane-index sides, not geometric ones: "fast" is towards higher lane indices (the
+left in keep-right nets, the right in left-hand nets), "slow" towards lane 0. A policy
+that passes on the fast side and keeps to the slow side thus drives correctly in both kinds
+of net. Pure numpy: no SUMO here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from behaviors.sensors import neighbours
+
+SPEED_SCALE = 40.0
+"""m/s: speeds are divided by this."""
+GAP_RANGE = 150.0
+"""m: neighbours farther than this along the road are not seen (gap 1 after scaling)."""
+RELATIVE_SPEED_SCALE = 15.0
+LANE_END_RANGE = 500.0
+"""m: how far a lane leads on is seen up to this distance (1 = at least that far)."""
+MAX_LANES_SEEN = 3
+OTHER_LENGTH = 5.0
+"""m: length assumed for other vehicles (gap = distance between front bumpers - length)."""
+OTHER_WIDTH = 1.8
+
+NEIGHBOUR_SLOTS = ("leader", "follower", "fast_leader", "fast_follower", "slow_leader", "slow_follower")
+"""Order of the six neighbours: own lane, the fast-side lane, the slow-side lane."""
+
+TRAFFIC_LAYOUT = (
+    ("speed", 1),
+    ("desired_speed", 1),
+    ("speed_error", 1),
+    ("speed_limit", 1),
+    ("lateral_speed", 1),
+    ("lane_offset", 1),
+    ("lane_width", 1),
+    ("lanes_fast_side", 1),
+    ("lanes_slow_side", 1),
+    ("curvature", 1),
+    ("lane_leads_on", 3),
+    ("gap", 6),
+    ("relative_speed", 6),
+    ("behaviour", 1),
+)
+"""Names and sizes in order (see the README's table)."""
+
+TRAFFIC_SLICES: dict[str, slice] = {}
+_start = 0
+for _name, _size in TRAFFIC_LAYOUT:
+    TRAFFIC_SLICES[_name] = slice(_start, _start + _size)
+    _start += _size
+TRAFFIC_OBS_SIZE = _start
+del _start, _name, _size
+
+
+@dataclass(frozen=True)
+class LaneAgents:
+    """The controlled agents in one step, in their lanes (row i = agent i).
+
+    Lateral quantities are signed towards the fast side (+ = towards higher lane indices).
+    """
+
+    front: np.ndarray  # [N, 2] front bumper centre, metres (SUMO's position)
+    road_heading: np.ndarray  # [N] world angle of the road axis at the car, radians CCW from +x
+    curvature: np.ndarray  # [N] 1/m of the road axis, + = turning to the geometric left
+    speed: np.ndarray  # [N] m/s along the road
+    lateral_speed: np.ndarray  # [N] m/s, + = towards the fast side
+    desired_speed: np.ndarray  # [N] m/s
+    speed_limit: np.ndarray  # [N] m/s
+    lane_offset: np.ndarray  # [N] metres from the own lane's centre, + = fast side
+    lane_width: np.ndarray  # [N] metres
+    lane_number: np.ndarray  # [N] own lane index (0 = slow side)
+    lanes: np.ndarray  # [N] lanes of the carriageway
+    lane_leads_on: np.ndarray  # [N, 3] metres the own, fast-side and slow-side lane lead on along the route
+    behaviour_id: np.ndarray  # [N] 0 keeper, 1 overtaker
+    fast_side_sign: float = 1.0  # +1 when the fast side is the geometric left (keep-right nets)
+
+
+@dataclass(frozen=True)
+class Surroundings:
+    """Leaders and followers around each agent, in metres and m/s (not normalised).
+
+    `gap` is bumper to bumper, +inf when nobody is within GAP_RANGE and 0 where the lane does
+    not exist (a wall); `other_speed` is the neighbour's speed (nan when there is none).
+    Columns follow NEIGHBOUR_SLOTS.
+    """
+
+    gap: np.ndarray  # [N, 6]
+    other_speed: np.ndarray  # [N, 6]
+
+    @property
+    def lead_gap(self) -> np.ndarray:
+        return self.gap[:, 0]
+
+    @property
+    def lead_speed(self) -> np.ndarray:
+        return self.other_speed[:, 0]
+
+
+def road_coordinates(
+    dx: np.ndarray, dy: np.ndarray, heading: np.ndarray, curvature: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(along, across) of world offsets in a road frame that bends with constant curvature.
+
+    `across` is + to the geometric left. On a straight road this is a rotation; on a curve
+    the offsets are taken about the curve's centre, so a car in the next lane 100 m round a
+    200 m-radius bend is still one lane over, not 25 m to the side.
+    """
+    c, s = np.cos(heading), np.sin(heading)
+    a = dx * c + dy * s  # ahead
+    b = -dx * s + dy * c  # left
+    bent = np.abs(curvature) > 1e-6
+    k = np.where(bent, curvature, 1.0)
+    radius = 1.0 / k  # signed: + = centre on the left
+    sign = np.sign(radius)
+    r = np.hypot(a, b - radius)
+    along = np.where(bent, np.arctan2(a, sign * (radius - b)) * np.abs(radius), a)
+    across = np.where(bent, radius - sign * r, b)
+    return along, across
+
+
+def surroundings(
+    agents: LaneAgents, positions: np.ndarray, speeds: np.ndarray, agent_rows: np.ndarray
+) -> Surroundings:
+    """Nearest leader and follower in the own, fast-side and slow-side lane of every agent.
+
+    A vehicle counts in every lane its body overlaps (a car mid-change blocks both lanes);
+    one alongside counts as a leader or follower with gap 0. `positions`/`speeds` cover all
+    vehicles (SUMO's too); `agent_rows[i]` is agent i's own row there.
+    """
+    n = len(agents.speed)
+    gap = np.full((n, 6), np.inf)
+    other = np.full((n, 6), np.nan)
+    q, m, dx, dy, _ = neighbours(agents.front, positions, GAP_RANGE + OTHER_LENGTH, exclude=agent_rows)
+    if len(q):
+        along, across = road_coordinates(dx, dy, agents.road_heading[q], agents.curvature[q])
+        across = across * agents.fast_side_sign
+        width = agents.lane_width[q]
+        # the other car's lateral place in own-lane widths, 0 = own lane centre
+        lane_units = (across + agents.lane_offset[q]) / width
+        half = OTHER_WIDTH / 2 / width
+        for side, column in ((0, 0), (1, 2), (-1, 4)):
+            overlaps = (lane_units + half > side - 0.5) & (lane_units - half < side + 0.5)
+            ahead = overlaps & (along >= 0)
+            behind = overlaps & (along < 0)
+            _nearest(gap, other, column, q[ahead], along[ahead] - OTHER_LENGTH, speeds[m[ahead]])
+            _nearest(gap, other, column + 1, q[behind], -along[behind] - OTHER_LENGTH, speeds[m[behind]])
+    gap = np.maximum(gap, 0.0)
+    fast_missing = agents.lane_number >= agents.lanes - 1
+    slow_missing = agents.lane_number <= 0
+    gap[fast_missing, 2:4] = 0.0
+    gap[slow_missing, 4:6] = 0.0
+    other[fast_missing, 2:4] = np.nan
+    other[slow_missing, 4:6] = np.nan
+    return Surroundings(gap, other)
+
+
+def _nearest(
+    gap: np.ndarray, other: np.ndarray, column: int, rows: np.ndarray, dist: np.ndarray, speed: np.ndarray
+) -> None:
+    """Keep, per row, the smallest `dist` (and the speed of that vehicle) in `column`."""
+    if not len(rows):
+        return
+    order = np.lexsort((dist, rows))
+    rows, dist, speed = rows[order], dist[order], speed[order]
+    first = np.concatenate([[True], rows[1:] != rows[:-1]])
+    rows, dist, speed = rows[first], dist[first], speed[first]
+    closer = dist < gap[rows, column]
+    gap[rows[closer], column] = dist[closer]
+    other[rows[closer], column] = speed[closer]
+
+
+def observe_lanes(agents: LaneAgents, around: Surroundings) -> np.ndarray:
+    """float32 [N, TRAFFIC_OBS_SIZE] observations, normalised to about [-1, 1]."""
+    n = len(agents.speed)
+    obs = np.empty((n, TRAFFIC_OBS_SIZE), np.float32)
+    put = _writer(obs)
+    put("speed", agents.speed / SPEED_SCALE)
+    put("desired_speed", agents.desired_speed / SPEED_SCALE)
+    put("speed_error", np.clip((agents.speed - agents.desired_speed) / 10.0, -1.0, 1.0))
+    put("speed_limit", agents.speed_limit / SPEED_SCALE)
+    put("lateral_speed", agents.lateral_speed / 2.0)
+    put("lane_offset", np.clip(agents.lane_offset / (agents.lane_width / 2), -1.5, 1.5))
+    put("lane_width", agents.lane_width / 4.0)
+    put("lanes_fast_side", np.minimum(agents.lanes - 1 - agents.lane_number, MAX_LANES_SEEN) / MAX_LANES_SEEN)
+    put("lanes_slow_side", np.minimum(agents.lane_number, MAX_LANES_SEEN) / MAX_LANES_SEEN)
+    put("curvature", np.clip(agents.curvature * agents.fast_side_sign * 100.0, -1.0, 1.0))
+    put("lane_leads_on", np.clip(agents.lane_leads_on / LANE_END_RANGE, 0.0, 1.0))
+    put("gap", np.minimum(around.gap / GAP_RANGE, 1.0))
+    relative = np.nan_to_num(around.other_speed - agents.speed[:, None], nan=0.0)
+    put("relative_speed", np.clip(relative / RELATIVE_SPEED_SCALE, -1.0, 1.0))
+    put("behaviour", agents.behaviour_id)
+    return obs
+
+
+def _writer(obs: np.ndarray):
+    def put(name: str, values: np.ndarray) -> None:
+        values = np.asarray(values)
+        obs[:, TRAFFIC_SLICES[name]] = values if values.ndim == 2 else values[:, None]
+
+    return put

@@ -1,0 +1,230 @@
+"""Training where the agents will drive: learned cars among SUMO's own traffic.
+
+Each episode picks one road of a family of closed multi-lane roads (2-5 lanes, 3.0-3.75 m
+lanes, curves of 300-800 m; `sumo_scenarios.training_roads`), fills it with SUMO cars at a
+density and with desired speeds drawn per episode (some slow enough to be worth passing),
+lets that traffic settle, then inserts the agents at free places at the speed SUMO finds
+safe there: agents enter at traffic speed, as `behave populate` inserts them. The agents see
+the lane observation (lanes.py), act through the traffic driver model (`actuate_lanes`) and
+earn the traffic reward (rewards.traffic_rewards). Keepers and overtakers differ only by the
+behaviour id and their desired speed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from behaviors.control import Fleet
+from behaviors.env import (
+    BACKGROUND_TYPE,
+    KEEPER_TYPE,
+    OVERTAKER_TYPE,
+    TRAINING_ROADS,
+    BehaveEnv,
+    EnvConfig,
+    StepBatch,
+    action_space,
+    observation_space_traffic,
+)
+from behaviors.errors import BehaveError
+from behaviors.geometry import RoadGeometry, load_geometry
+from behaviors.rewards import NO_PROGRESS_SECONDS, TrafficStep, TrafficWeights, traffic_rewards
+from behaviors.sim import SimOptions, SumoSim
+from behaviors.timing import PhaseTimer
+from sumo_scenarios import Scenario, get_scenario, route_edges, training_roads
+
+DESIRED_SPEED = {0.0: (0.72, 0.90), 1.0: (0.92, 1.0)}
+"""Desired speed as a fraction of the limit, drawn per agent: keepers (0) and overtakers (1)."""
+SLOW_SHARE = 0.25
+"""Share of SUMO's cars that drive slowly (speed factor 0.55-0.75, trucks and cautious drivers)."""
+SLOW_FACTOR = (0.55, 0.75)
+FAST_FACTOR = (0.8, 1.05)
+WARMUP_SECONDS = 10.0
+"""SUMO's cars drive alone this long before the agents enter (insertion spreads out)."""
+INSERT_TRIES = 10
+"""Steps an agent may wait for a free place before it sits this episode out."""
+QUEUE_GAP = 20.0
+"""m: an agent this close behind its leader is queueing, not failing to make progress."""
+
+
+def desired_fractions(behaviour_id: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Desired speed per agent as a share of the local limit: overtakers want more than keepers."""
+    out = np.empty(len(behaviour_id))
+    for flag, (low, high) in DESIRED_SPEED.items():
+        mask = behaviour_id == flag
+        out[mask] = rng.uniform(low, high, mask.sum())
+    return out
+
+
+def background_speed_factors(count: int, rng: np.random.Generator) -> np.ndarray:
+    slow = rng.random(count) < SLOW_SHARE
+    return np.where(slow, rng.uniform(*SLOW_FACTOR, count), rng.uniform(*FAST_FACTOR, count))
+
+
+class TrafficEnv(BehaveEnv):
+    """Keepers and overtakers among SUMO's traffic (driver "traffic"); same interfaces as BehaveEnv."""
+
+    def __init__(self, config: EnvConfig) -> None:
+        config.validate()
+        self.config = config
+        self.roads: list[Scenario] = (
+            training_roads() if config.scenario == TRAINING_ROADS else [get_scenario(str(config.scenario))]
+        )
+        self._geometries: dict[str, RoadGeometry] = {}
+        self.scenario = self.roads[0]
+        self.geometry = self._geometry(self.scenario)
+        self.lap = route_edges(self.scenario)
+        self.slot_behaviour = config.behaviour_ids()
+        self.possible_agents = [f"agent_{i}" for i in range(config.n_agents)]
+        self._obs_space = observation_space_traffic()
+        self._act_space = action_space()
+        self.sim: SumoSim | None = None
+        self.timer = PhaseTimer()
+        self.weights = TrafficWeights()
+        self.fleet = Fleet(
+            self.geometry, config.car, config.step_length, self.timer, config.shield, "traffic"
+        )
+        self.agents: list[str] = []
+        self._live_slots = np.zeros(0, np.int64)
+        self._rng = np.random.default_rng(config.seed)
+        self.progress = np.zeros(config.n_agents)
+        self.passive_ids: list[str] = []
+        self._passive_on_road: set[str] = set()  # SUMO's cars stay on the road after a contact
+
+    def _geometry(self, road: Scenario) -> RoadGeometry:
+        if road.name not in self._geometries:
+            self._geometries[road.name] = load_geometry(road.net)
+        return self._geometries[road.name]
+
+    def reset_arrays(self, seed: int | None = None) -> np.ndarray:
+        """A new episode on a road drawn from the family; observations [n_inserted, D] in slot order."""
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        rng, cfg = self._rng, self.config
+        self.scenario = self.roads[int(rng.integers(len(self.roads)))]
+        self.geometry = self._geometry(self.scenario)
+        self.lap = route_edges(self.scenario)
+        options = SimOptions(
+            net=self.scenario.net,
+            additional=(self.scenario.vtypes,),
+            routes=(self.scenario.routes,),
+            step_length=cfg.step_length,
+            seed=int(rng.integers(2**31 - 1)),
+        )
+        if self.sim is None:
+            self.sim = SumoSim(options)
+        else:
+            self.sim.restart(options)
+        sim = self.sim
+        routes = self._routes()
+        weights = np.array([self.geometry.edges[e].length for e in self.lap])
+        weights /= weights.sum()
+        lanes = min(self.geometry.edges[e].lanes for e in self.lap)
+        lap_km = sum(self.geometry.edges[e].length for e in self.lap) / 1000.0
+        count = int(rng.uniform(*cfg.traffic_density) * lap_km * lanes)
+        for k, factor in enumerate(background_speed_factors(count, rng)):
+            vid = f"traffic_{k}"
+            sim.add_free_vehicle(vid, routes[int(rng.choice(len(routes), p=weights))], BACKGROUND_TYPE)
+            sim.set_speed_factor(vid, float(factor))
+        for _ in range(int(WARMUP_SECONDS / cfg.step_length)):
+            sim.step()
+        self._insert_agents(routes, weights)
+        self.steps = 0
+        vehicles = sim.read_vehicles()
+        self.live_obs = self.fleet.sense(sim, vehicles, True)
+        return self.live_obs
+
+    def _insert_agents(self, routes: list[str], weights: np.ndarray) -> None:
+        """Agents at free places of the road, at the speed SUMO finds safe there."""
+        sim, cfg, rng = self.sim, self.config, self._rng
+        assert sim is not None
+        names = self.possible_agents
+        for slot, name in enumerate(names):
+            vtype = OVERTAKER_TYPE if self.slot_behaviour[slot] else KEEPER_TYPE
+            sim.add_free_vehicle(name, routes[int(rng.choice(len(routes), p=weights))], vtype, speed="max")
+        pending = set(names)
+        for _ in range(INSERT_TRIES):
+            sim.step()
+            pending -= set(sim.vehicle_ids())
+            if not pending:
+                break
+        sim.remove(sorted(pending))  # no free place this episode: the slot sits it out
+        slots = np.array([k for k, name in enumerate(names) if name not in pending], np.int64)
+        if not len(slots):
+            raise BehaveError(f"no agent could be inserted on {self.scenario.name}: traffic too dense")
+        ids = [names[k] for k in slots]
+        sim.take_control(ids)
+        behaviour = self.slot_behaviour[slots]
+        self.fleet = Fleet(self.geometry, cfg.car, cfg.step_length, self.timer, cfg.shield, "traffic")
+        self.fleet.add(ids, sim.read_speeds(ids), behaviour, desired_fractions(behaviour, rng))
+        self.agents = ids
+        self._live_slots = slots
+        self.progress = np.zeros(cfg.n_agents)
+        self.start_progress = np.zeros(cfg.n_agents)
+
+    def step_arrays(self, actions: np.ndarray) -> StepBatch:
+        """Act for the live agents (rows in `live_slots` order) and advance SUMO one step."""
+        if self.sim is None or not self.agents:
+            raise RuntimeError("step_arrays needs a running episode: call reset first")
+        if actions.shape != (len(self.agents), 3):
+            raise ValueError(f"expected actions of shape ({len(self.agents)}, 3), got {actions.shape}")
+        sim, fleet, dt = self.sim, self.fleet, self.config.step_length
+        slots = self._live_slots
+        n = len(slots)
+        assert fleet.rows.frame is not None
+        desired = fleet.rows.desired_fraction * fleet.rows.frame.speed_limit
+        before_speed, before_lateral = fleet.rows.speed.copy(), fleet.rows.lateral_speed.copy()
+        actuation = fleet.act(sim, actions)
+        assert actuation.lateral_speed is not None
+        with self.timer.phase("sumo"):
+            sim.step()
+        self.steps += 1
+        with self.timer.phase("read"):
+            contact = sim.collisions()
+            vehicles = sim.read_vehicles()
+        present = fleet.locate(vehicles) >= 0
+        next_obs = self.live_obs.copy()  # an agent that left keeps its last observation
+        fleet.keep(present)
+        gap = np.full((n, 6), np.inf)
+        other = np.full((n, 6), np.nan)
+        deviation = np.zeros(n)
+        changed = np.zeros(n, bool)
+        if present.any():
+            next_obs[present] = fleet.sense(sim, vehicles, True)
+            around, frame = fleet.rows.around, fleet.rows.frame
+            assert around is not None and frame is not None
+            gap[present], other[present] = around.gap, around.other_speed
+            deviation[present] = frame.lane_deviation
+            changed[present] = fleet.rows.lane_changed
+        collided = np.zeros(n, bool)
+        collided[present] = fleet.involved(vehicles, contact)
+        off_track = actuation.off_track & present
+        queueing = gap[:, 0] < QUEUE_GAP
+        no_progress = (self._slow_time(present) >= NO_PROGRESS_SECONDS) & present & ~queueing
+        speed = actuation.speed
+        terms = traffic_rewards(
+            TrafficStep(
+                speed=speed,
+                desired_speed=desired,
+                acceleration=(speed - before_speed) / dt,
+                lateral_acceleration=(actuation.lateral_speed - before_lateral) / dt,
+                lane_deviation=deviation,
+                lane_changed=changed,
+                behaviour_id=self.slot_behaviour[slots],
+                gap=gap,
+                other_speed=other,
+                collided=collided,
+                off_track=off_track,
+                no_progress=no_progress,
+            ),
+            self.weights,
+        )
+        terminated = collided | off_track | no_progress
+        truncated = ~terminated & (~present | (self.steps >= self.config.max_steps))
+        self._leave(slots, present, terminated | truncated, contact)
+        self.live_obs = next_obs[~(terminated | truncated)]
+        self.progress[slots] += speed * dt
+        return StepBatch(
+            slots, next_obs, terms.total, terms, terminated, truncated, collided, off_track, no_progress,
+            speed, deviation,
+        )  # fmt: skip

@@ -1,0 +1,192 @@
+"""The traffic driver: lane observation, lateral-speed actuation, traffic reward, and its env."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from behaviors.actuation import CarModel, LaneDriving, actuate_lanes
+from behaviors.env import make_env
+from behaviors.lanes import (
+    GAP_RANGE,
+    TRAFFIC_OBS_SIZE,
+    TRAFFIC_SLICES,
+    LaneAgents,
+    observe_lanes,
+    road_coordinates,
+    surroundings,
+)
+from behaviors.rewards import TrafficStep, TrafficWeights, traffic_rewards
+
+
+def one_agent(**over) -> LaneAgents:
+    base = dict(
+        front=np.array([[0.0, 0.0]]),
+        road_heading=np.array([0.0]),
+        curvature=np.array([0.0]),
+        speed=np.array([30.0]),
+        lateral_speed=np.array([0.0]),
+        desired_speed=np.array([30.0]),
+        speed_limit=np.array([33.3]),
+        lane_offset=np.array([0.0]),
+        lane_width=np.array([3.5]),
+        lane_number=np.array([1]),
+        lanes=np.array([3]),
+        lane_leads_on=np.array([[1000.0, 1000.0, 1000.0]]),
+        behaviour_id=np.array([1.0]),
+    )
+    base.update(over)
+    return LaneAgents(**base)
+
+
+def test_road_coordinates_on_a_circle_give_arc_length_and_lane_offset():
+    radius = 200.0
+    # a car 3.5 m further out (right of a left-turning road), 60 degrees round the bend
+    phi = np.pi / 3
+    r_other = radius + 3.5
+    point = np.array([r_other * np.sin(phi), radius - r_other * np.cos(phi)])
+    along, across = road_coordinates(point[:1], point[1:], np.array([0.0]), np.array([1 / radius]))
+    assert along[0] == pytest.approx(radius * phi, rel=1e-9)
+    assert across[0] == pytest.approx(-3.5, abs=1e-9)
+    straight = road_coordinates(np.array([10.0]), np.array([2.0]), np.array([np.pi / 2]), np.array([0.0]))
+    assert straight[0][0] == pytest.approx(2.0) and straight[1][0] == pytest.approx(-10.0)
+
+
+def test_surroundings_find_leaders_and_followers_per_lane():
+    agent = one_agent()
+    # world: agent front at 0, others: own lane 40 m ahead, fast lane (left, +3.5 m) 10 m behind,
+    # slow lane (right) 100 m ahead, and one far away
+    positions = np.array([[0.0, 0.0], [45.0, 0.2], [-5.0, 3.5], [105.0, -3.5], [1000.0, 0.0]])
+    speeds = np.array([30.0, 25.0, 35.0, 20.0, 10.0])
+    around = surroundings(agent, positions, speeds, np.array([0]))
+    gap, other = around.gap[0], around.other_speed[0]
+    assert gap[0] == pytest.approx(40.0) and other[0] == 25.0  # leader: 45 m front to front - 5 m
+    assert np.isinf(gap[1]) and np.isnan(other[1])  # nobody behind in the own lane
+    assert np.isinf(gap[2])
+    assert gap[3] == pytest.approx(0.0) and other[3] == 35.0  # fast-lane car alongside: gap 0
+    assert gap[4] == pytest.approx(100.0) and other[4] == 20.0
+    obs = observe_lanes(agent, around)
+    assert obs.shape == (1, TRAFFIC_OBS_SIZE)
+    assert obs[0, TRAFFIC_SLICES["gap"]][0] == pytest.approx(40.0 / GAP_RANGE)
+    assert obs[0, TRAFFIC_SLICES["relative_speed"]][0] == pytest.approx(-5.0 / 15.0)
+
+
+def test_a_car_astride_two_lanes_blocks_both_and_missing_lanes_are_walls():
+    agent = one_agent(lane_number=np.array([0]), lanes=np.array([2]))
+    positions = np.array([[0.0, 0.0], [30.0, 1.75]])  # centred on the line to the fast lane
+    around = surroundings(agent, positions, np.array([30.0, 30.0]), np.array([0]))
+    assert around.gap[0, 0] == pytest.approx(25.0) and around.gap[0, 2] == pytest.approx(25.0)
+    assert around.gap[0, 4] == 0.0 and around.gap[0, 5] == 0.0  # no lane on the slow side
+    obs = observe_lanes(agent, around)
+    assert obs[0, TRAFFIC_SLICES["lanes_slow_side"]][0] == 0.0
+
+
+def test_lateral_speed_follows_steer_within_the_acceleration_limit():
+    car, lateral, dt = CarModel(), LaneDriving(), 0.2
+    speed, lat, offset = np.array([30.0]), np.array([0.0]), np.array([0.0])
+    full_left = np.array([[1.0, 0.5, 0.0]])
+    history = []
+    for _ in range(10):
+        out = actuate_lanes(
+            full_left, speed, lat, offset, np.array([5.25]), np.array([33.3]), dt, car, lateral
+        )
+        assert abs(out.lateral_speed[0] - lat[0]) <= lateral.max_lateral_accel * dt + 1e-12
+        lat, offset, speed = out.lateral_speed, offset + out.lateral_move, out.speed
+        history.append(lat[0])
+    assert history[-1] == pytest.approx(lateral.max_lateral_speed)
+    hold = actuate_lanes(np.array([[0.0, 0.5, 0.0]]), speed, np.array([0.0]), offset, np.array([5.25]),
+                         np.array([33.3]), dt, car, lateral)  # fmt: skip
+    assert hold.lateral_move[0] == 0.0  # steer 0 keeps the place in the lane
+
+
+def test_lateral_motion_is_limited_at_low_speed_and_at_the_border():
+    car, lateral = CarModel(), LaneDriving()
+    slow = actuate_lanes(np.array([[1.0, 0.0, 0.0]]), np.array([2.0]), np.array([0.0]), np.array([0.0]),
+                         np.array([5.25]), np.array([33.3]), 0.2, car, lateral)  # fmt: skip
+    assert abs(slow.lateral_speed[0]) <= lateral.max_slip * slow.speed[0] + 1e-12
+    edge = actuate_lanes(np.array([[1.0, 0.0, 0.0]]), np.array([30.0]), np.array([1.5]), np.array([4.3]),
+                         np.array([5.25]), np.array([33.3]), 0.2, car, lateral)  # fmt: skip
+    assert edge.off_track[0]
+
+
+def traffic_step(**over) -> TrafficStep:
+    n = 2
+    base = dict(
+        speed=np.full(n, 30.0),
+        desired_speed=np.full(n, 30.0),
+        acceleration=np.zeros(n),
+        lateral_acceleration=np.zeros(n),
+        lane_deviation=np.zeros(n),
+        lane_changed=np.zeros(n, bool),
+        behaviour_id=np.array([0.0, 1.0]),
+        gap=np.full((n, 6), np.inf),
+        other_speed=np.full((n, 6), np.nan),
+        collided=np.zeros(n, bool),
+        off_track=np.zeros(n, bool),
+        no_progress=np.zeros(n, bool),
+    )
+    base.update(over)
+    return TrafficStep(**base)
+
+
+def test_free_road_at_the_desired_speed_is_the_best_step():
+    gap = np.full((2, 6), np.inf)
+    gap[:, 4:6] = 0.0  # in the slowest lane
+    terms = traffic_rewards(traffic_step(gap=gap), TrafficWeights())
+    assert terms.total == pytest.approx([1.0, 1.0])
+
+
+def test_following_a_slower_car_costs_an_overtaker_but_not_a_keeper():
+    gap = np.full((2, 6), np.inf)
+    gap[:, 0] = 40.0  # 2 s behind a car at 20 m/s
+    other = np.full((2, 6), np.nan)
+    other[:, 0] = 20.0
+    terms = traffic_rewards(
+        traffic_step(speed=np.full(2, 20.0), gap=gap, other_speed=other), TrafficWeights()
+    ).as_dict()
+    assert terms["speed"][0] == pytest.approx(1.0)  # keeper: the lane allows 20 m/s
+    assert terms["speed"][1] == pytest.approx(1 - 10 / 30)  # overtaker: wants 30
+    assert terms["headway"] == pytest.approx([0.0, 0.0]) and terms["closing"] == pytest.approx([0.0, 0.0])
+
+
+def test_short_headway_closing_in_lane_changes_and_passing_on_the_slow_side_cost():
+    w = TrafficWeights()
+    gap = np.full((2, 6), np.inf)
+    other = np.full((2, 6), np.nan)
+    gap[:, 0], other[:, 0] = 15.0, 25.0  # 0.5 s behind, closing at 5 m/s: TTC 3 s
+    gap[:, 2], other[:, 2] = 5.0, 20.0  # a slower car just ahead in the fast-side lane
+    terms = traffic_rewards(
+        traffic_step(gap=gap, other_speed=other, lane_changed=np.array([True, True])), w
+    ).as_dict()
+    assert terms["headway"] == pytest.approx(-w.headway * (1.5 - 0.5) / 1.5)
+    assert terms["closing"] == pytest.approx(-w.closing * (4 - 3) / 4)
+    assert terms["lane_change"] == pytest.approx([-w.lane_change_keeper, -w.lane_change_overtaker])
+    assert terms["pass_slow_side"] == pytest.approx(-w.pass_slow_side * 10 / 5 / 2)
+
+
+def test_an_overtaker_with_a_free_slow_lane_is_asked_to_keep_to_it():
+    gap = np.full((2, 6), np.inf)
+    terms = traffic_rewards(traffic_step(gap=gap), TrafficWeights()).as_dict()
+    assert terms["keep_slow_side"] == pytest.approx([0.0, -TrafficWeights().keep_slow_side])
+    walled = gap.copy()
+    walled[:, 4:6] = 0.0  # already in the slowest lane
+    terms = traffic_rewards(traffic_step(gap=walled), TrafficWeights()).as_dict()
+    assert terms["keep_slow_side"] == pytest.approx([0.0, 0.0])
+
+
+def test_traffic_env_runs_an_episode_among_sumo_cars():
+    env = make_env("ring", behaviour="multi", overtakers=2, keepers=2, driver="traffic", seed=3, max_steps=40)
+    try:
+        obs = env.reset_arrays(seed=3)
+        assert obs.shape[1] == TRAFFIC_OBS_SIZE and 1 <= len(obs) <= 4
+        assert len(env.sim.vehicle_ids()) > len(obs)  # SUMO's own cars are on the road
+        steps = 0
+        while env.agents:
+            batch = env.step_arrays(np.tile([0.0, 0.3, 0.0], (len(env.agents), 1)).astype(np.float32))
+            assert np.isfinite(batch.reward).all() and np.isfinite(batch.next_obs).all()
+            steps += 1
+        assert steps == 40 or batch.terminated.any()
+        first = env.reset_arrays(seed=3)
+        np.testing.assert_array_equal(first, obs)  # one seed, one episode
+    finally:
+        env.close()
