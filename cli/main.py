@@ -11,7 +11,7 @@ import sys
 import typer
 
 from behaviors.errors import BehaveError
-from cli import evaluate, export, populate, scenario, train
+from cli import evaluate, export, populate, report, scenario, train
 
 app = typer.Typer(
     help="behave: learned, behaviour-based traffic in SUMO (PS-DDPG lane keepers and overtakers).",
@@ -25,6 +25,7 @@ app.command("populate")(populate.populate_command)
 app.command("export")(export.export_command)
 app.command("plot")(export.plot_command)
 app.command("evaluate")(evaluate.evaluate_command)
+app.command("report")(report.report_command)
 
 
 def main() -> None:
