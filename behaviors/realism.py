@@ -458,6 +458,14 @@ class Report:
     losses_known: bool  # a per-agent table was read: no figure means the group had no agents
 
 
+def check_options(skip_s: float, group_by: str) -> None:
+    """Refuse bad options before a long FCD is read."""
+    if not skip_s >= 0:
+        raise BehaveError(f"--skip-s must be >= 0, got {skip_s}")
+    if group_by not in GROUP_BY:
+        raise BehaveError(f"unknown grouping {group_by!r}: choose one of {', '.join(GROUP_BY)}")
+
+
 def _ordered_groups(groups: pd.Index) -> list[str]:
     known = [g for g in (*GROUPS_OF_TYPE.values(), OTHER_GROUP) if g in groups]
     return known + sorted(g for g in groups if g not in known)
@@ -473,8 +481,7 @@ def measure(
     lengths: Mapping[str, float] | None = None,
 ) -> Report:
     """Every realism measure of an FCD table (from `read_fcd`), per group of vehicles."""
-    if skip_s < 0:
-        raise BehaveError(f"--skip-s must be >= 0, got {skip_s}")
+    check_options(skip_s, group_by)
     tr = prepare(df, lanes, skip_s=skip_s, group_by=group_by, lengths=lengths)
     motion = lateral_motion(tr)
     settled = tr["settled"].to_numpy()
@@ -512,7 +519,7 @@ def measure(
     table = pd.DataFrame({key: values.reindex(groups) for key, values in rows.items()}).T
     lane_use = live.groupby(["group", "road_rank"]).size().unstack(fill_value=0)
     lane_use = lane_use.div(lane_use.sum(axis=1), axis=0).reindex(groups).T
-    lane_use.index = [f"lane_{int(rank)}" for rank in lane_use.index]
+    lane_use.index = [f"lane_{int(rank)}_share" for rank in lane_use.index]
     notes = [_lane_note(lanes), f"each car's first {skip_s:g} s left out"]
     if agents is not None:
         loss = losses(agents, group_by).reindex(groups).T
@@ -626,7 +633,8 @@ def _figure(report: Report, title: str) -> Figure:
         shares = report.table.loc[lane_rows, g].fillna(0).to_numpy()
         lanes.bar(np.arange(len(lane_rows)) + k * bar, 100 * shares, bar, label=g, color=colour[g])
     lanes.set_xticks(
-        np.arange(len(lane_rows)) + bar * (len(groups) - 1) / 2, [r.replace("_", " ") for r in lane_rows]
+        np.arange(len(lane_rows)) + bar * (len(groups) - 1) / 2,
+        [f"lane {r.split('_')[1]}" for r in lane_rows],
     )
     lanes.set_ylabel("share of time [%]")
     lanes.set_title("lane use (lane 0 = outermost)")

@@ -10,7 +10,17 @@ from rich.console import Console
 from rich.table import Table
 
 from behaviors.export import read_fcd
-from behaviors.realism import GROUP_BY, SKIP_S, Lanes, agents_path, measure, read_agents, read_lanes, rows
+from behaviors.realism import (
+    GROUP_BY,
+    SKIP_S,
+    Lanes,
+    agents_path,
+    check_options,
+    measure,
+    read_agents,
+    read_lanes,
+    rows,
+)
 from behaviors.realism import write_report as write_realism
 
 
@@ -28,6 +38,7 @@ def report_command(
     ] = "type",
 ) -> None:
     """Lane use, lane changes, lateral acceleration, headways, passes, speeds and losses per group."""
+    check_options(skip_s, group_by)
     lanes = read_lanes(net) if net is not None else Lanes()
     agents = read_agents(agents_path(fcd))
     report = measure(read_fcd(fcd), lanes, agents=agents, skip_s=skip_s, group_by=group_by)
