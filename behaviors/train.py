@@ -8,9 +8,12 @@ One loop for the three algorithms; what differs is who acts and learns:
 * multi-ddpg: a learner per agent slot, each updated once per step.
 
 A run directory holds config.json, metrics.csv (one row per episode),
-checkpoints/ (last, best, final, interrupted: policy + critic), state.pt (the
-whole training state for --resume) and curve.png. Everything is written
-atomically; Ctrl-C or SIGTERM stops at the next step and saves.
+checkpoints/ (last, best, final, interrupted: policy + critic), state.pt and
+replay/ (the training state as of the end of the last finished episode, for
+--resume; saved after every episode, the replay rows as append-only chunks)
+and curve.png. Everything is written atomically; Ctrl-C or SIGTERM stops at
+the next step: the partial episode is dropped, and a resumed run replays it
+exactly as an uninterrupted run would.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import torch
 
 from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.ddpg.learner import DDPGConfig, DDPGLearner, IndependentLearners
+from behaviors.ddpg.replay_files import ReplayFiles
 from behaviors.env import BEHAVIOURS, BehaveEnv, EnvConfig
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path, atomic_write_bytes, atomic_write_text, ensure_writable_dir
@@ -37,7 +41,7 @@ from behaviors.metrics import EpisodeStats, summary
 from behaviors.sensors import OBSERVATION_LAYOUT
 
 ALGORITHMS = ("ps-ddpg", "ddpg", "multi-ddpg")
-STATE_VERSION = 1
+STATE_VERSION = 2
 _LEARNER = DDPGConfig()
 
 
@@ -156,10 +160,15 @@ class Trainer:
         else:
             self.learner = DDPGLearner(self.obs_dim, config.ddpg_config(), config.seed)
         self.speed_limit = max(info.speed for info in self.env.geometry.edges.values() if info.normal)
+        self.replay = ReplayFiles(out / "replay", self.learner.buffers)
         self.rows: list[dict[str, Any]] = []
         self.episode = 0
         self.best = -np.inf
-        self.stop_requested = False
+        self.stop_signal: int | None = None  # SIGINT or SIGTERM, once one asked to stop
+
+    @property
+    def stop_requested(self) -> bool:
+        return self.stop_signal is not None
 
     # --- policy I/O -------------------------------------------------------------------
     def meta(self) -> dict[str, Any]:
@@ -224,30 +233,41 @@ class Trainer:
 
     # --- resume -----------------------------------------------------------------------
     def save_state(self) -> None:
+        """The whole training state between episodes, as plain data (tensors, numbers, strings):
+        the new replay rows go to replay/ first, then state.pt names the chunks it needs."""
         payload = {
             "version": STATE_VERSION,
             "episode": self.episode,
             "best": float(self.best),
-            "learner": self.learner.state_dict(),
+            "rows": json.dumps(self.rows),
+            "learner": self.learner.state_dict(replay_rows=False),
+            "replay": self.replay.write_new_rows(),
             "config": self.config.to_json(),
         }
         with atomic_path(self.out / "state.pt") as tmp:
             torch.save(payload, tmp)
+        self.replay.prune()
 
     def load_state(self) -> None:
+        """Read as data (weights_only): a run directory from elsewhere cannot run code."""
         path = self.out / "state.pt"
         if not path.is_file():
             raise BehaveError(f"nothing to resume in {self.out}: no state.pt")
         try:
-            payload = torch.load(path, map_location="cpu", weights_only=False)
-            if payload.get("version") != STATE_VERSION:
-                raise ValueError("version")
-            self.learner.load_state_dict(payload["learner"])
+            payload = torch.load(path, map_location="cpu", weights_only=True)
         except Exception:
             raise BehaveError(f"{path} is not a behave training state (corrupt or truncated)") from None
+        if not isinstance(payload, dict) or payload.get("version") != STATE_VERSION:
+            version = payload.get("version") if isinstance(payload, dict) else None
+            raise BehaveError(f"{path} is training state version {version!r}; behave resumes {STATE_VERSION}")
+        try:
+            self.learner.load_state_dict(payload["learner"])
+            self.replay.restore(payload["replay"])
+        except Exception as exc:
+            raise BehaveError(f"{path}: cannot restore the learner or its replay/ rows ({exc})") from None
         self.episode = int(payload["episode"])
         self.best = float(payload["best"])
-        self.rows = read_metrics(self.out / "metrics.csv")[: self.episode]
+        self.rows = json.loads(payload["rows"])
 
     # --- the loop ---------------------------------------------------------------------
     def run(self, on_episode: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
@@ -270,12 +290,7 @@ class Trainer:
                         on_episode(row)
             finally:
                 self.env.close()
-        if self.stop_requested:
-            self.save_policy("interrupted")
-            self.save_state()
-        else:
-            self.save_policy("final")
-            self.save_state()
+        self.save_policy("interrupted" if self.stop_requested else "final")
         write_metrics(self.out / "metrics.csv", self.rows)
         plot_curve(self.out / "curve.png", self.rows)
         return self.rows
@@ -316,14 +331,17 @@ class Trainer:
         return self.learner.updates
 
     def _after_episode(self, row: dict[str, Any]) -> None:
-        self.save_policy("last")
-        if row["reward_sum"] > self.best:
+        """The state first (it holds the metrics rows too): a kill after it redoes no episode."""
+        improved = row["reward_sum"] > self.best
+        if improved:
             self.best = row["reward_sum"]
+        self.save_state()
+        self.save_policy("last")
+        if improved:
             self.save_policy("best")
         write_metrics(self.out / "metrics.csv", self.rows)
         if self.episode % self.config.checkpoint_every == 0:
             self.save_policy(f"episode_{self.episode:05d}")
-            self.save_state()
             plot_curve(self.out / "curve.png", self.rows)
 
 
@@ -359,7 +377,7 @@ def _stop_on_signals(trainer: Trainer) -> Iterator[None]:
     def request(signum, frame) -> None:
         if trainer.stop_requested:
             raise KeyboardInterrupt
-        trainer.stop_requested = True
+        trainer.stop_signal = signum
 
     previous = {sig: signal.signal(sig, request) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -370,17 +388,11 @@ def _stop_on_signals(trainer: Trainer) -> Iterator[None]:
 
 
 def write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:
+    """The episodes' rows as CSV; no file before the first episode ends (an empty CSV has no header)."""
     import pandas as pd
 
-    atomic_write_text(path, pd.DataFrame(rows).to_csv(index=False))
-
-
-def read_metrics(path: Path) -> list[dict[str, Any]]:
-    import pandas as pd
-
-    if not path.is_file() or path.stat().st_size == 0:
-        return []
-    return pd.read_csv(path).to_dict("records")
+    if rows:
+        atomic_write_text(path, pd.DataFrame(rows).to_csv(index=False))
 
 
 def plot_curve(path: Path, rows: list[dict[str, Any]]) -> None:
@@ -422,7 +434,8 @@ def plot_curve(path: Path, rows: list[dict[str, Any]]) -> None:
 
 
 def prepare_run(config: TrainConfig, out: Path, *, resume: bool, episodes: int | None = None) -> Trainer:
-    """Create (or reopen with --resume) a run directory and its trainer.
+    """Create (or reopen with --resume) a run directory and its trainer; a new run's state is
+    saved at once, so that a run stopped in its first episode can be resumed.
 
     On resume the stored config is used; `episodes` (if given) sets the new total.
     """
@@ -431,16 +444,22 @@ def prepare_run(config: TrainConfig, out: Path, *, resume: bool, episodes: int |
         if not saved.is_file():
             raise BehaveError(f"nothing to resume in {out}: no config.json")
         stored = TrainConfig.from_json(saved.read_text())
-        config = dataclasses.replace(stored, episodes=episodes or stored.episodes, max_minutes=None)
+        total = stored.episodes if episodes is None else episodes
+        config = dataclasses.replace(stored, episodes=total, max_minutes=None)
     else:
         if (out / "state.pt").exists():
             raise BehaveError(f"{out} already holds a run: use --resume or another --out")
     ensure_writable_dir(out)
     ensure_writable_dir(out / "checkpoints")
     trainer = Trainer(config, out)
-    atomic_write_text(out / "config.json", config.to_json())
     if resume:
         trainer.load_state()
-    elif config.init:
+        if trainer.episode > config.episodes:
+            raise BehaveError(f"{out} has {trainer.episode} episodes already: --episodes is the total")
+    atomic_write_text(out / "config.json", config.to_json())
+    if resume:
+        return trainer
+    if config.init:
         trainer.initialise_from(config.init)
+    trainer.save_state()
     return trainer

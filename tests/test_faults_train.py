@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
-from dataclasses import fields
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import MISSING, fields
+from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
+import torch
 
 from behaviors import make_env
 from behaviors.control import AgentRows, RoadFrame
+from behaviors.ddpg.checkpoint import load_actor
 from behaviors.sensors import SLICES
+from behaviors.train import TrainConfig, prepare_run
 
 
 def hold_lane(obs: np.ndarray) -> np.ndarray:
@@ -33,15 +42,108 @@ def test_the_last_agent_reaching_the_end_of_a_non_looping_road_ends_the_episode(
 
 
 def test_taking_agent_rows_keeps_every_per_agent_field_in_step():
-    n = 3
-    frame = RoadFrame(*(np.arange(float(n)) for _ in fields(RoadFrame)))
-    rows = AgentRows(
-        ids=["a", "b", "c"], speed=np.arange(3.0), angle=np.zeros(n), slow_time=np.zeros(n),
-        behaviour_id=np.zeros(n, np.float32), vehicle_rows=np.array([5, 6, 7]), frame=frame,
-        side_limit=np.zeros((n, 2)), speed_cap=np.zeros(n),
-    )  # fmt: skip
-    kept = rows.take(np.array([True, False, True]))
-    assert kept.ids == ["a", "c"] and list(kept.vehicle_rows) == [5, 7]
+    n, mask = 3, np.array([True, False, True])
+    values: dict = {"side_limit": np.zeros((n, 2)), "speed_cap": np.arange(3.0)}
     for f in fields(AgentRows):
-        assert f.name == "frame" or len(getattr(kept, f.name)) == 2, f.name
-    assert all(len(getattr(kept.frame, f.name)) == 2 for f in fields(RoadFrame))
+        default = f.default_factory() if f.default_factory is not MISSING else None
+        if isinstance(default, list):
+            values[f.name] = [f"{f.name}_{k}" for k in range(n)]
+        elif isinstance(default, np.ndarray):
+            values[f.name] = np.arange(n).astype(default.dtype).reshape(n, *([1] * (default.ndim - 1)))
+    frame = RoadFrame(*(np.arange(float(n)) for _ in fields(RoadFrame)))
+    kept = AgentRows(**values, frame=frame).take(mask)
+    for name, value in values.items():
+        assert len(getattr(kept, name)) == 2 and str(getattr(kept, name)[1]) == str(value[2]), name
+    assert all(list(getattr(kept.frame, f.name)) == [0.0, 2.0] for f in fields(RoadFrame))
+
+
+CONFIG = {"scenario": "tiny", "agents": 2, "max_steps": 60, "warmup": 32, "batch_size": 16,
+          "hidden": (32, 32),
+          "buffer_size": 5000, "checkpoint_every": 10, "seed": 4}  # fmt: skip
+TOTAL = 5
+COLUMNS = ["episode", "reward_sum", "steps", "updates", "collisions", "off_tracks", "progress_sum"]
+
+# A training child that blocks inside step 3 of episode `target` until its parent's real
+# signal arrives, so the signal lands mid-episode, at a known step.
+CHILD = """
+import sys, time
+from pathlib import Path
+from behaviors.train import TrainConfig, prepare_run
+out, target, config = Path(sys.argv[1]), int(sys.argv[2]), eval(sys.argv[3])
+trainer = prepare_run(TrainConfig(**config), out, resume=False)
+step = trainer.env.step_arrays
+def blocking_step(actions):
+    batch = step(actions)
+    if trainer.episode == target and trainer.env.steps == 3:
+        (out / "mid-episode").touch()
+        deadline = time.monotonic() + 60
+        while not trainer.stop_requested and time.monotonic() < deadline:
+            time.sleep(0.01)
+    return batch
+trainer.env.step_arrays = blocking_step
+trainer.run()
+"""
+
+
+def final_actor(run: Path) -> dict:
+    return load_actor(run / "checkpoints" / "final.pt").state_dict()
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    """Rows and final policy of a run that nothing stopped."""
+    out = tmp_path_factory.mktemp("whole") / "run"
+    rows = prepare_run(TrainConfig(**CONFIG, episodes=TOTAL), out, resume=False).run()
+    return rows, final_actor(out)
+
+
+def wait_for(predicate, seconds: float = 120.0) -> None:
+    deadline = time.monotonic() + seconds
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.02)
+
+
+def assert_same_run(rows: list[dict], actor: dict, uninterrupted) -> None:
+    want_rows, want_actor = uninterrupted
+    assert [[r[c] for c in COLUMNS] for r in rows] == [[r[c] for c in COLUMNS] for r in want_rows]
+    for key, value in want_actor.items():
+        torch.testing.assert_close(actor[key], value, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("target", [0, 1])
+def test_a_run_stopped_mid_episode_by_sigterm_resumes_exactly_like_an_uninterrupted_run(
+    tmp_path, uninterrupted, target
+):
+    out = tmp_path / "run"
+    child = subprocess.Popen(
+        [sys.executable, "-c", CHILD, str(out), str(target), repr({**CONFIG, "episodes": TOTAL})]
+    )
+    try:
+        wait_for(lambda: (out / "mid-episode").exists())
+        child.send_signal(signal.SIGTERM)
+        assert child.wait(timeout=60) == 0
+    finally:
+        child.kill()
+    assert (out / "checkpoints" / "interrupted.pt").is_file()
+    trainer = prepare_run(TrainConfig(), out, resume=True)  # no --episodes: the stored total holds
+    assert trainer.episode == target and trainer.config.episodes == TOTAL
+    rows = trainer.run()
+    assert_same_run(rows, final_actor(out), uninterrupted)
+    assert len(pd.read_csv(out / "metrics.csv")) == TOTAL
+
+
+def test_a_killed_run_resumes_from_its_last_finished_episode(tmp_path, uninterrupted):
+    out = tmp_path / "run"
+    config = {**CONFIG, "episodes": 1000}  # checkpoint_every 10: no numbered checkpoint before the kill
+    child = subprocess.Popen([sys.executable, "-c", CHILD, str(out), "-1", repr(config)])
+    try:
+        wait_for(lambda: (out / "metrics.csv").exists() and len(pd.read_csv(out / "metrics.csv")) >= 2)
+        child.kill()
+        child.wait(timeout=60)
+    finally:
+        child.kill()
+    finished = len(pd.read_csv(out / "metrics.csv"))
+    trainer = prepare_run(TrainConfig(), out, resume=True, episodes=TOTAL)
+    assert trainer.episode >= finished  # no finished episode is redone
+    assert_same_run(trainer.run(), final_actor(out), uninterrupted)

@@ -47,6 +47,7 @@ class ReplayBuffer:
         }
         self._ptr = 0
         self._size = 0
+        self.added = 0  # rows ever added: row g sits in ring slot g % capacity while it is kept
 
     def __len__(self) -> int:
         return self._size
@@ -73,6 +74,7 @@ class ReplayBuffer:
             self._data[name][idx] = value[n - keep :]
         self._ptr = (start + keep) % self.capacity
         self._size = min(self._size + n, self.capacity)
+        self.added += n
 
     def sample(self, batch_size: int) -> Batch:
         """Uniform sample with replacement (cheap, and unbiased for the DDPG loss)."""
@@ -81,25 +83,46 @@ class ReplayBuffer:
         idx = self.rng.integers(0, self._size, size=batch_size)
         return Batch(*(torch.from_numpy(self._data[name][idx]) for name in _FIELDS))
 
-    def state_dict(self) -> dict[str, Any]:
-        """Filled rows (copied, as tensors so torch.load(weights_only=True) accepts them),
-        write pointer and sampling RNG: enough to resume sampling exactly."""
-        arrays = {name: torch.tensor(self._data[name][: self._size]) for name in _FIELDS}
+    def state_dict(self, rows: bool = True) -> dict[str, Any]:
+        """Counters, sampling RNG and (unless `rows` is False: a trainer saves them as they come,
+        with `rows_since`) the filled rows, as tensors so torch.load(weights_only=True) accepts them."""
+        arrays = {name: torch.tensor(self._data[name][: self._size]) for name in _FIELDS} if rows else None
         return {
             "capacity": self.capacity,
             "ptr": self._ptr,
             "size": self._size,
+            "added": self.added,
             "arrays": arrays,
             "rng": self.rng.bit_generator.state,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Without rows in `state` the ring starts zeroed: `put_rows` then fills it."""
         if state["capacity"] != self.capacity:
             raise ValueError(f"replay capacity {state['capacity']} != {self.capacity}")
         size = state["size"]
         for name in _FIELDS:
-            self._data[name][:size] = state["arrays"][name].numpy()
-            self._data[name][size:] = 0
+            self._data[name][:] = 0
+            if state["arrays"] is not None:
+                self._data[name][:size] = state["arrays"][name].numpy()
         self._ptr = state["ptr"]
         self._size = size
+        self.added = state["added"]
         self.rng.bit_generator.state = state["rng"]
+
+    def rows_since(self, start: int) -> tuple[int, dict[str, torch.Tensor]]:
+        """The rows added since `start` rows had been added (those still kept), and the first one's
+        number: saving only these after each episode keeps a trainer's saves small."""
+        first = max(start, self.added - self._size)
+        slots = np.arange(first, self.added) % self.capacity
+        return first, {name: torch.from_numpy(self._data[name][slots]) for name in _FIELDS}
+
+    def put_rows(self, first: int, arrays: dict[str, torch.Tensor]) -> None:
+        """Put rows from `rows_since` back in their ring slots (after `load_state_dict`)."""
+        n = len(arrays["rew"])
+        if first < 0 or first + n > self.added:
+            raise ValueError(f"replay rows {first}..{first + n} lie beyond the {self.added} added")
+        lo = max(first, self.added - self._size)  # older rows were overwritten since
+        slots = np.arange(lo, first + n) % self.capacity
+        for name in _FIELDS:
+            self._data[name][slots] = arrays[name][lo - first :].numpy()

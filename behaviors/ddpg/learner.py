@@ -96,6 +96,11 @@ class DDPGLearner:
         self.transitions = 0
         self.updates = 0
 
+    @property
+    def buffers(self) -> list[ReplayBuffer]:
+        """The replay buffers (one here), alike for both learner kinds."""
+        return [self.buffer]
+
     def act(self, obs: np.ndarray, explore: bool) -> np.ndarray:
         """One batched forward pass for all N rows; exploration noise added, then clipped."""
         with torch.inference_mode():
@@ -156,9 +161,10 @@ class DDPGLearner:
         self.updates += 1
         return critic_loss.item(), actor_loss.item(), q.mean().item()
 
-    def state_dict(self) -> dict[str, Any]:
+    def state_dict(self, replay_rows: bool = True) -> dict[str, Any]:
         """Everything a resumed run needs to continue bit-identically (nets, targets,
-        optimisers, replay, noise, counters, torch RNG); loadable with weights_only=True."""
+        optimisers, replay, noise, counters, torch RNG); loadable with weights_only=True.
+        `replay_rows` False leaves out the replay rows (see ReplayBuffer.rows_since)."""
         return {
             "obs_dim": self.obs_dim,
             "actor": self.actor.state_dict(),
@@ -167,7 +173,7 @@ class DDPGLearner:
             "critic_target": self.critic_target.state_dict(),
             "actor_opt": self.actor_opt.state_dict(),
             "critic_opt": self.critic_opt.state_dict(),
-            "buffer": self.buffer.state_dict(),
+            "buffer": self.buffer.state_dict(replay_rows),
             "noise": self.noise.state_dict(),
             "transitions": self.transitions,
             "updates": self.updates,
@@ -227,8 +233,12 @@ class IndependentLearners:
             return {}
         return {k: float(np.mean([s[k] for s in stats])) for k in stats[0]}
 
-    def state_dict(self) -> dict[str, Any]:
-        return {"learners": [lr.state_dict() for lr in self.learners]}
+    @property
+    def buffers(self) -> list[ReplayBuffer]:
+        return [lr.buffer for lr in self.learners]
+
+    def state_dict(self, replay_rows: bool = True) -> dict[str, Any]:
+        return {"learners": [lr.state_dict(replay_rows) for lr in self.learners]}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if len(state["learners"]) != len(self.learners):
