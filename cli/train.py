@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import signal
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -28,8 +30,9 @@ def train(
         int | None, typer.Option(help="slower passive cars ahead (overtaking; multi: default 0)")
     ] = None,
     episodes: Annotated[
-        int, typer.Option(help="episodes to train (total, with --resume)")
-    ] = DEFAULTS.episodes,
+        int | None,
+        typer.Option(help=f"episodes in all (default {DEFAULTS.episodes}; with --resume: the stored total)"),
+    ] = None,
     max_steps: Annotated[int, typer.Option(help="steps per episode (time limit)")] = DEFAULTS.max_steps,
     step_length: Annotated[float, typer.Option(help="seconds per step")] = DEFAULTS.step_length,
     seed: Annotated[int, typer.Option(help="makes the run repeatable")] = DEFAULTS.seed,
@@ -59,10 +62,11 @@ def train(
         float | None, typer.Option(help="wall-clock budget; stops after that episode")
     ] = None,
 ) -> None:
-    """Train a behaviour; Ctrl-C saves a checkpoint and the state to --resume from."""
+    """Train a behaviour; Ctrl-C or SIGTERM stops it (exit 130 or 143), resumable with --resume."""
     config = TrainConfig(
         behaviour=behaviour, algo=algo, agents=agents, overtakers=overtakers, keepers=keepers,
-        placement=placement, opponents=opponents, episodes=episodes or DEFAULTS.episodes, max_steps=max_steps,
+        placement=placement, opponents=opponents, max_steps=max_steps,
+        episodes=DEFAULTS.episodes if episodes is None else episodes,
         step_length=step_length, seed=seed, scenario=scenario, init=str(init) if init else None,
         updates_per_step=updates_per_step, batched_updates=batched_updates, hidden=parse_sizes(hidden),
         batch_size=batch_size, reward_scale=reward_scale, explore_decay_steps=explore_decay_steps,
@@ -89,9 +93,20 @@ def train(
                 ),
             )
 
-        trainer.run(show)
-    state = "interrupted; continue with --resume" if trainer.stop_requested else "done"
-    typer.echo(f"{state}: {trainer.episode} episodes in {run_dir}")
+        try:
+            trainer.run(show)
+        except KeyboardInterrupt:  # a second Ctrl-C: the last finished episode's state is saved
+            trainer.stop_signal = signal.SIGINT
+    resume_with = f"continue with: behave train {trainer.config.behaviour} --resume {run_dir}"
+    done = f"{trainer.episode} of {total} episodes in {run_dir}"
+    if trainer.stop_signal is not None:
+        name = signal.Signals(trainer.stop_signal).name
+        print(f"behave: {name} stopped training after {done}; {resume_with}", file=sys.stderr)
+        sys.exit(128 + trainer.stop_signal)  # 130 for Ctrl-C, 143 for SIGTERM, as a shell reports them
+    if trainer.episode < total:
+        typer.echo(f"stopped at the --max-minutes budget after {done}; {resume_with}")
+    else:
+        typer.echo(f"done: {done}")
 
 
 def parse_sizes(text: str) -> tuple[int, ...]:
