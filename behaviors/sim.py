@@ -9,6 +9,7 @@ close. No other module imports libsumo.
 from __future__ import annotations
 
 import contextlib
+import weakref
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -101,19 +102,50 @@ class AgentReadings:
     lateral_pos: np.ndarray  # [N] metres from the lane centre, positive = left
 
 
+_running: weakref.ref[SumoSim] | None = None  # the process's one live simulation, if any
+
+ONE_PER_PROCESS = (
+    "a SUMO simulation is already running in this process and libsumo runs only one: close the "
+    "other env (or simulation) first, or run each in its own process (see README)"
+)
+
+
+def _claim(sim: SumoSim) -> None:
+    """Refuse a second live simulation: through libsumo it would silently drive the first one's cars."""
+    global _running
+    if _running is not None and _running() is not None:
+        raise BehaveError(ONE_PER_PROCESS)
+    _running = weakref.ref(sim)
+
+
+def _release(sim: SumoSim) -> None:
+    global _running
+    if _running is not None and _running() is sim:
+        _running = None
+
+
+def _stop(libsumo: ModuleType) -> None:
+    with contextlib.suppress(Exception):  # already closed: closing twice is harmless
+        libsumo.close()
+
+
 class SumoSim:
-    """A libsumo simulation; use as a context manager or call close()."""
+    """A libsumo simulation; use as a context manager or call close(). One at a time per process:
+    a second raises BehaveError until the first is closed (or garbage collected, which closes it)."""
 
     def __init__(self, options: SimOptions) -> None:
         import libsumo  # deferred: importing libsumo is slow and prints nothing useful at import
 
+        _claim(self)
         self._sumo = libsumo
         self._fast = fast_vehicle_calls(libsumo)
         self.options = options
         try:
             libsumo.start(options.command())
         except Exception as exc:  # libsumo raises its own TraCIException/FatalSumoError types
+            _release(self)
             raise BehaveError(f"SUMO could not start: {_one_line(exc)}") from None
+        self._closer = weakref.finalize(self, _stop, libsumo)
         self.step_length = options.step_length
         self._last = VehicleState((), np.zeros((0, 2)), np.zeros(0), {})
 
@@ -136,8 +168,9 @@ class SumoSim:
         self.step_length = options.step_length
 
     def close(self) -> None:
-        with contextlib.suppress(Exception):  # already closed: closing twice is harmless
-            self._sumo.close()
+        """Stop SUMO (once; closing again is harmless) and let another simulation start."""
+        self._closer()
+        _release(self)
 
     @property
     def time(self) -> float:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -13,8 +14,9 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from pettingzoo.test import parallel_seed_test
 
-from behaviors import make_env
+from behaviors import BehaveError, make_env
 from behaviors.control import AgentRows, RoadFrame
 from behaviors.ddpg.checkpoint import load_actor
 from behaviors.sensors import SLICES
@@ -147,3 +149,108 @@ def test_a_killed_run_resumes_from_its_last_finished_episode(tmp_path, uninterru
     trainer = prepare_run(TrainConfig(), out, resume=True, episodes=TOTAL)
     assert trainer.episode >= finished  # no finished episode is redone
     assert_same_run(trainer.run(), final_actor(out), uninterrupted)
+
+
+def behave(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    command = [sys.executable, "-m", "cli", *args]
+    return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+
+
+TINY_CLI = ["train", "lanekeeping", "--scenario", "tiny", "--agents", "2", "--hidden", "32,32",
+            "--batch-size", "16"]  # fmt: skip
+
+
+@pytest.mark.parametrize(("stop", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_interrupted_training_exits_non_zero_with_one_line_on_how_to_resume(tmp_path, stop, code):
+    out = tmp_path / "run"
+    args = [sys.executable, "-m", "cli", *TINY_CLI, "--max-steps", "60", "--out", str(out)]
+    child = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for(lambda: (out / "metrics.csv").exists())
+        child.send_signal(stop)
+        _, err = child.communicate(timeout=60)
+    finally:
+        child.kill()
+    assert child.returncode == code, err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1].endswith(f"continue with: behave train lanekeeping --resume {out}")
+
+
+def test_a_budget_of_0_minutes_leaves_a_run_that_resumes_to_its_stored_total(tmp_path):
+    out = tmp_path / "run"
+    budget = behave(*TINY_CLI, "--max-steps", "5", "--episodes", "2", "--max-minutes", "0", "--out", str(out))
+    assert budget.returncode == 0, budget.stderr
+    assert f"after 0 of 2 episodes in {out}; continue with: behave train lanekeeping --resume" in (
+        budget.stdout
+    )
+    resumed = behave(*TINY_CLI, "--resume", str(out))  # no --episodes: the stored 2, not the default 100
+    assert resumed.returncode == 0, resumed.stderr
+    assert json.loads((out / "config.json").read_text())["episodes"] == 2
+    assert len(pd.read_csv(out / "metrics.csv")) == 2
+
+
+def test_zero_episodes_are_refused_in_one_line(tmp_path):
+    done = behave(*TINY_CLI, "--max-steps", "5", "--episodes", "0", "--out", str(tmp_path / "run"))
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [done.stderr.strip()] and "episodes" in done.stderr
+    assert not (tmp_path / "run" / "metrics.csv").exists()
+
+
+class RunsCode:
+    """Unpickling this creates `marker`: what a hostile state.pt could do instead."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (str(self.marker), "w"))
+
+
+def test_resume_reads_the_state_as_data_and_never_runs_code_in_it(tmp_path):
+    out, marker = tmp_path / "run", tmp_path / "code-ran"
+    prepare_run(TrainConfig(**CONFIG, episodes=1), out, resume=False)
+    torch.save({"version": 2, "learner": RunsCode(marker)}, out / "state.pt")
+    with pytest.raises(BehaveError, match="corrupt or truncated"):
+        prepare_run(TrainConfig(), out, resume=True)
+    assert not marker.exists()
+
+
+def test_a_second_live_simulation_in_one_process_is_refused_until_the_first_is_closed():
+    first, second = make_env("tiny", agents=1, seed=1), make_env("tiny", agents=1, seed=1)
+    made = []
+
+    def make():
+        made.append(make_env("tiny", agents=1, seed=1))
+        return made[-1]
+
+    try:
+        first.reset_arrays(1)
+        with pytest.raises(BehaveError, match="already running in this process"):
+            second.reset_arrays(1)
+        with pytest.raises(BehaveError, match="already running in this process"):
+            parallel_seed_test(make)  # it steps two live envs side by side: see README
+        first.close()
+        assert second.reset_arrays(1).shape == (1, 65)
+    finally:
+        for env in (first, second, *made):
+            env.close()
+
+
+def test_envs_made_one_after_another_repeat_each_other_exactly():
+    """What parallel_seed_test checks, with one live simulation at a time."""
+    traces = []
+    for _ in range(2):
+        env = make_env("tiny", agents=2, seed=42)
+        try:
+            trace = [env.reset_arrays(42).copy()]
+            for _ in range(30):
+                if not env.agents:
+                    break
+                batch = env.step_arrays(hold_lane(env.live_obs))
+                trace += [batch.next_obs.copy(), batch.reward.copy()]
+        finally:
+            env.close()
+        traces.append(trace)
+    assert len(traces[0]) == len(traces[1]) > 10
+    for a, b in zip(*traces, strict=True):
+        np.testing.assert_array_equal(a, b)
