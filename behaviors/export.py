@@ -7,19 +7,20 @@ outputs are fixed up here and checked before they are shipped.
 
 from __future__ import annotations
 
+import gzip
 import os
 import re
 import shutil
 import subprocess
 import sys
-import tempfile
 import xml.etree.ElementTree as ET
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import IO, TYPE_CHECKING
 from xml.sax.saxutils import quoteattr
 
 from behaviors.errors import BehaveError
+from behaviors.files import atomic_path, check_output_path, temp_dir
 from behaviors.sumo_home import sumo_home, sumo_tool
 
 if TYPE_CHECKING:
@@ -38,6 +39,7 @@ FCD_ATTRIBUTES += ("acceleration", "distance", "odometer")
 TEXT_COLUMNS = ("id", "type", "lane")
 COLUMNS = ("time", "id", "x", "y", "angle", "type", "speed", "pos", "lane", "posLat")
 COLUMNS += ("acceleration", "distance", "odometer")
+GEO_COLUMNS = tuple({"x": "lon", "y": "lat"}.get(c, c) for c in COLUMNS)
 EXPORT_FORMATS = ("ns2", "omnet", "gpx", "kml", "ipg")
 GEO_FORMATS = ("gpx", "kml")
 OMNET_BOGUS_LINE = re.compile(r"^<xmlns:xsi=[^\n]*>\n", re.MULTILINE)
@@ -50,6 +52,8 @@ KML_DOC_HEADER = (
     "\t<name>SUMO FCD</name>\n\t<open>1</open>\n\t<description>traces of SUMO FCD output</description>\n"
 )
 GPX_NAMESPACE = "http://www.topografix.com/GPX/1/0"
+GEO_HEADER = re.compile(r'<fcd-output\.geo value="true"|<!-- behave populate:[^\n]* geo=true')
+TIMESTEP = re.compile(rb'<timestep time="([^"]*)"')
 
 
 def fcd_options(path: Path, *, geo: bool) -> list[str]:
@@ -70,15 +74,164 @@ def _fcd_format(path: Path) -> str:
 def read_fcd(path: Path, *, geo: bool = False) -> pd.DataFrame:
     """One row per vehicle and time step, the same columns and dtypes for xml, csv and parquet.
 
-    `geo` names the coordinates lon/lat: SUMO's geo output keeps calling them x/y, and
-    csv/parquet carry no header that would tell.
+    Coordinates are named lon/lat when the file says it holds them (see `fcd_is_geo`) or
+    `geo` is given: SUMO's geo output keeps calling them x/y, and its csv/parquet carry no
+    header that would tell.
     """
     path = Path(path)
     reader = {"xml": _read_xml, "csv": _read_csv, "parquet": _read_parquet}[_fcd_format(path)]
     if not path.is_file():
         raise BehaveError(f"FCD file not found: {path}")
-    df = _normalise(reader(path))
-    return df.rename(columns={"x": "lon", "y": "lat"}) if geo else df
+    df = reader(path)
+    if geo or (not {"lon", "lat"} & set(df.columns) and fcd_is_geo(path)):
+        df = df.rename(columns={"x": "lon", "y": "lat"})
+    return _normalise(df)
+
+
+def fcd_is_geo(path: Path) -> bool:
+    """Whether an FCD file says it holds lon/lat: SUMO's or behave's XML header, behave's columns."""
+    path = Path(path)
+    fmt = _fcd_format(path)
+    if fmt == "xml":
+        with open(path, encoding="utf-8", errors="replace") as f:
+            header = f.read(65536).split("<fcd-export", 1)[0]
+        return GEO_HEADER.search(header) is not None
+    if fmt == "csv":
+        with open(path, encoding="utf-8", errors="replace") as f:
+            columns = f.readline().strip().split(";")
+    else:
+        import pyarrow.parquet as pq
+
+        try:
+            columns = pq.ParquetFile(path).schema_arrow.names
+        except Exception:  # pyarrow raises several types on files that are not parquet
+            return False
+    return "vehicle_lon" in columns
+
+
+def seal_fcd(partial: Path, final: Path, *, header: str, geo: bool, last_time: float, step: float) -> None:
+    """Check SUMO's FCD at `partial` is whole, then move it to `final` (atomically).
+
+    SUMO writes its outputs without reporting write errors: on a full disk it leaves a
+    CSV cut mid-row, an empty Parquet file or XML without its end, and exits normally. A
+    file is whole when it parses to its end and its last time step is `last_time`. XML gets
+    `header` in place of SUMO's (equal seeds give equal bytes); geo csv/parquet name their
+    coordinate columns lon/lat, so the file says what it holds.
+    """
+    check = {"xml": _check_xml_whole, "csv": _check_csv_whole, "parquet": _check_parquet_whole}
+    try:
+        check[_fcd_format(final)](partial, last_time, step)
+    except CutShort as err:
+        raise BehaveError(
+            f"SUMO's FCD output was cut short, {final} not written (disk full?): {err}"
+        ) from None
+    if final.suffix == ".xml":
+        with atomic_path(final) as tmp:
+            _copy_with_header(partial, tmp, header)
+    elif geo:
+        with atomic_path(final) as tmp:
+            (_geo_csv if final.suffix == ".csv" else _geo_parquet)(partial, tmp)
+    else:
+        os.replace(partial, final)
+
+
+class CutShort(Exception):
+    """An output file that does not reach its end."""
+
+
+def _check_last_time(time: str | float | None, last_time: float, step: float) -> None:
+    try:
+        seen = float(time)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise CutShort(f"last time step {time!r} unreadable") from None
+    if abs(seen - last_time) > step / 2:
+        raise CutShort(f"last time step {seen:g} s, expected {last_time:g} s")
+
+
+def _check_xml_whole(path: Path, last_time: float, step: float) -> None:
+    """Well-formed to its closing tag (expat in C, 1 MB blocks); the last <timestep> time."""
+    import xml.parsers.expat
+
+    parser = xml.parsers.expat.ParserCreate()
+    last, tail = None, b""
+    try:
+        with open(path, "rb") as f:
+            while block := f.read(1 << 20):
+                parser.Parse(block, False)
+                found = TIMESTEP.findall(tail + block)
+                last = found[-1] if found else last
+                tail = block[-200:]
+            parser.Parse(b"", True)
+    except xml.parsers.expat.ExpatError as err:
+        raise CutShort(f"XML {err}") from None
+    _check_last_time(last.decode() if last else None, last_time, step)
+
+
+def _check_csv_whole(path: Path, last_time: float, step: float) -> None:
+    """The last row ends with a newline and has the header's fields; its time is the last step."""
+    with open(path, "rb") as f:
+        header = f.readline()
+        f.seek(max(f.tell(), os.fstat(f.fileno()).st_size - 65536))
+        end = f.read()
+    if not header.endswith(b"\n") or not end.endswith(b"\n"):
+        raise CutShort("CSV ends mid-row")
+    row = (end.rstrip(b"\n").rsplit(b"\n", 1)[-1] or header).split(b";")
+    if len(row) != header.count(b";") + 1:
+        raise CutShort("CSV last row has missing fields")
+    _check_last_time(row[0].decode(errors="replace"), last_time, step)
+
+
+def _check_parquet_whole(path: Path, last_time: float, step: float) -> None:
+    """Parquet's footer is written last: a cut file does not open; then the last time step."""
+    import pyarrow.parquet as pq
+
+    try:
+        table = pq.ParquetFile(path)
+        groups = table.metadata.num_row_groups
+        times = table.read_row_group(groups - 1, columns=["timestep_time"]).column(0) if groups else []
+    except Exception as err:  # pyarrow raises several types on a cut file
+        raise CutShort(str(err)) from None
+    _check_last_time(times[-1].as_py() if len(times) else None, last_time, step)
+
+
+def _copy_with_header(source: Path, target: Path, header: str) -> None:
+    """SUMO's XML with its option comment replaced by `header`."""
+    with open(source, encoding="utf-8") as src, open(target, "w", encoding="utf-8") as dst:
+        in_comment = False
+        for line in src:
+            if not in_comment and line.startswith("<!-- generated on"):
+                in_comment = True
+                dst.write(header)
+            if in_comment:
+                in_comment = "-->" not in line
+                continue
+            dst.write(line)
+            if line.startswith("<fcd-export"):
+                break
+        shutil.copyfileobj(src, dst, 1 << 20)
+
+
+def _geo_csv(source: Path, target: Path) -> None:
+    with open(source, "rb") as src, open(target, "wb") as dst:
+        dst.write(_geo_names(src.readline().decode()).encode())
+        shutil.copyfileobj(src, dst, 1 << 20)
+
+
+def _geo_parquet(source: Path, target: Path) -> None:
+    """Row group by row group, so memory stays bounded on long traces."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pq.ParquetFile(source)
+    names = _geo_names(";".join(table.schema_arrow.names)).split(";")
+    schema = pa.schema([f.with_name(n) for f, n in zip(table.schema_arrow, names, strict=True)])
+    with pq.ParquetWriter(target, schema) as writer:
+        for k in range(table.metadata.num_row_groups):
+            writer.write_table(table.read_row_group(k).rename_columns(names))
+
+
+def _geo_names(header: str) -> str:
+    return re.sub(r"\bvehicle_x\b", "vehicle_lon", re.sub(r"\bvehicle_y\b", "vehicle_lat", header))
 
 
 def _not_fcd(path: Path, why: object) -> BehaveError:
@@ -155,8 +308,9 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
     """Canonical column order and dtypes; absent attributes become missing values."""
     import pandas as pd
 
-    extra = [c for c in df.columns if c not in COLUMNS]
-    df = df.reindex(columns=[*COLUMNS, *extra]).reset_index(drop=True)
+    columns = GEO_COLUMNS if "lon" in df.columns else COLUMNS
+    extra = [c for c in df.columns if c not in columns]
+    df = df.reindex(columns=[*columns, *extra]).reset_index(drop=True)
     for column in df.columns:
         if column in TEXT_COLUMNS:
             df[column] = df[column].astype(pd.StringDtype())
@@ -192,8 +346,9 @@ def export_fcd(fcd: Path, fmt: str, *, net: Path | None, out: Path) -> list[Path
     """Convert FCD (xml, csv or parquet) with traceExporter; returns the files written.
 
     `out` is the main file; ns2 adds `<stem>.config<suffix>` and `<stem>.activity<suffix>`.
-    gpx and kml need lon/lat: an FCD recorded with geo output, or `net` with a projection.
-    Files appear complete or not at all (temp dir beside `out`, then os.replace).
+    gpx and kml need lon/lat: an FCD recorded with geo output (used as it is, `net` or not),
+    or `net` with a projection. ns2, omnet and ipg need metres: a geo FCD is projected back
+    with `net`. Files appear complete or not at all (temp dir beside `out`, then os.replace).
     """
     fcd, out = Path(fcd), Path(out)
     if fmt not in EXPORT_FORMATS:
@@ -201,12 +356,12 @@ def export_fcd(fcd: Path, fmt: str, *, net: Path | None, out: Path) -> list[Path
     if not fcd.is_file():
         raise BehaveError(f"FCD file not found: {fcd}")
     source_format = _fcd_format(fcd)
-    geo = fmt in GEO_FORMATS and not (source_format == "xml" and _recorded_geo(fcd))
-    if geo:
-        _require_projection(net, fmt)
-    work = _temp_dir(out)
+    projection = _projection_needed(fcd, fmt, net)
+    for path in _output_names(fmt, out.name).values():
+        check_output_path(out.with_name(path))
+    work = temp_dir(out)
     try:
-        source = _traceable_fcd(fcd, source_format, work / "input.fcd.xml", net if geo else None)
+        source = _traceable_fcd(fcd, source_format, work / "input.fcd.xml", net, projection)
         written = _run_trace_exporter(source, fmt, out.name, work)
         for path in written:
             _FIXES.get(fmt, _unchanged)(path)
@@ -214,77 +369,92 @@ def export_fcd(fcd: Path, fmt: str, *, net: Path | None, out: Path) -> list[Path
         for path, final in zip(written, finals, strict=True):
             os.replace(path, final)
         return finals
+    except OSError as err:
+        raise BehaveError(f"cannot write {out}: {err.strerror or err}") from None
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
 
-def _temp_dir(out: Path) -> Path:
-    if not out.parent.is_dir():
-        raise BehaveError(f"output directory does not exist: {out.parent}")
-    try:
-        return Path(tempfile.mkdtemp(prefix=".behave-export-", dir=out.parent))
-    except OSError as err:
-        raise BehaveError(f"output directory is not writable: {out.parent} ({err.strerror})") from None
+def _projection_needed(fcd: Path, fmt: str, net: Path | None) -> str | None:
+    """`to_geo`, `from_geo` or None: how x/y must be converted for `fmt` (refused if impossible)."""
+    geo = fcd_is_geo(fcd)
+    if (fmt in GEO_FORMATS) == geo:
+        return None  # lon/lat for gpx/kml, metres for the others: never projected twice
+    if geo:
+        if net is None:
+            raise BehaveError(
+                f"{fcd} holds lon/lat but {fmt} needs metres: give --net (the net it was recorded on)"
+            )
+        require_projection(net, f"projecting {fcd} back to metres for {fmt}")
+        return "from_geo"
+    require_projection(net, f"{fmt} needs lon/lat: record the FCD with geo output or give a net")
+    return "to_geo"
 
 
-def _recorded_geo(fcd: Path) -> bool:
-    """SUMO's FCD XML header repeats its options, so a geo recording says so."""
-    with open(fcd, encoding="utf-8", errors="replace") as f:
-        header = f.read(65536).split("<fcd-export", 1)[0]
-    return re.search(r'<fcd-output\.geo value="true"', header) is not None
+def open_net(net: Path) -> IO[bytes]:
+    """A SUMO net file for reading, gzip-compressed (.net.xml.gz) or not."""
+    with open(net, "rb") as f:
+        compressed = f.read(2) == b"\x1f\x8b"
+    return gzip.open(net, "rb") if compressed else open(net, "rb")
 
 
-def _require_projection(net: Path | None, fmt: str) -> None:
-    need = f"{fmt} needs lon/lat: record the FCD with geo output or give a net with a projection"
+def require_projection(net: Path | None, need: str) -> None:
+    """A BehaveError saying `need` unless `net` is a SUMO net with a geo projection."""
     if net is None:
         raise BehaveError(need)
     if not Path(net).is_file():
         raise BehaveError(f"net file not found: {net}")
     try:
-        location = next((e for _, e in ET.iterparse(net) if e.tag == "location"), None)
-    except ET.ParseError as err:
+        with open_net(net) as f:
+            location = next((e for _, e in ET.iterparse(f) if e.tag == "location"), None)
+    except (ET.ParseError, OSError, EOFError) as err:
         raise BehaveError(f"{net} is not a SUMO net ({err})") from None
     if location is None or location.get("projParameter", "!") == "!":
         raise BehaveError(f"{need} ({net} has no projection)")
 
 
-def _traceable_fcd(fcd: Path, source_format: str, tmp: Path, net: Path | None) -> Path:
-    """An FCD XML file traceExporter can read: converted from csv/parquet or to lon/lat."""
-    if source_format == "xml" and net is None:
+def _traceable_fcd(
+    fcd: Path, source_format: str, tmp: Path, net: Path | None, projection: str | None
+) -> Path:
+    """An FCD XML file traceExporter can read: converted from csv/parquet or projected."""
+    if source_format == "xml" and projection is None:
         _check_fcd_root(fcd)  # traceExporter would die with a traceback on it
         return fcd
     df = read_fcd(fcd)
-    if net is not None:
-        df = _to_lonlat(df, net, tmp.parent)
+    if "lon" in df.columns:  # traceExporter reads lon/lat from x/y
+        df = df.rename(columns={"lon": "x", "lat": "y"})
+    if projection is not None:
+        assert net is not None
+        df = _project(df, net, tmp.parent, from_geo=projection == "from_geo")
     _write_fcd_xml(df, tmp)
     return tmp
 
 
-def _to_lonlat(df: pd.DataFrame, net: Path, work: Path) -> pd.DataFrame:
-    """Project x/y with SUMO's own PROJ (pyproj is not installed) through libsumo, in a child
-    process: libsumo allows one simulation per process and the caller may be running one."""
-    xy, lonlat = work / "xy.txt", work / "lonlat.txt"
-    xy.write_text("".join(f"{x!r} {y!r}\n" for x, y in zip(df["x"], df["y"], strict=True)))
-    code = "import sys; from behaviors.export import _lonlat_main; _lonlat_main(*sys.argv[1:])"
-    command = [sys.executable, "-c", code, str(net), str(xy), str(lonlat)]
+def _project(df: pd.DataFrame, net: Path, work: Path, *, from_geo: bool) -> pd.DataFrame:
+    """x/y to lon/lat (or back) with SUMO's own PROJ (pyproj is not installed) through libsumo,
+    in a child process: libsumo allows one simulation per process and the caller may run one."""
+    source, target = work / "source.txt", work / "target.txt"
+    source.write_text("".join(f"{x!r} {y!r}\n" for x, y in zip(df["x"], df["y"], strict=True)))
+    code = "import sys; from behaviors.export import _project_main; _project_main(*sys.argv[1:])"
+    command = [sys.executable, "-c", code, str(net), str(source), str(target), str(int(from_geo))]
     done = subprocess.run(command, capture_output=True, text=True)
     if done.returncode != 0:
         lines = done.stderr.strip().splitlines() or ["no output"]
-        raise BehaveError(f"projecting x/y to lon/lat with {net} failed: {lines[-1]}")
-    pairs = [line.split() for line in lonlat.read_text().splitlines()]
+        raise BehaveError(f"projecting coordinates with {net} failed: {lines[-1]}")
+    pairs = [line.split() for line in target.read_text().splitlines()]
     return df.assign(x=[float(p[0]) for p in pairs], y=[float(p[1]) for p in pairs])
 
 
-def _lonlat_main(net: str, xy: str, lonlat: str) -> None:
-    """Child side of `_to_lonlat`."""
+def _project_main(net: str, source: str, target: str, from_geo: str) -> None:
+    """Child side of `_project`."""
     import libsumo
 
     libsumo.start(["sumo", "-n", net, "--no-step-log", "--no-warnings"])
     try:
-        with open(xy) as source, open(lonlat, "w") as target:
-            for line in source:
-                lon, lat = libsumo.simulation.convertGeo(*map(float, line.split()))
-                target.write(f"{lon!r} {lat!r}\n")
+        with open(source) as points, open(target, "w") as out:
+            for line in points:
+                a, b = libsumo.simulation.convertGeo(*map(float, line.split()), fromGeo=from_geo == "1")
+                out.write(f"{a!r} {b!r}\n")
     finally:
         libsumo.close()
 

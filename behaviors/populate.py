@@ -25,7 +25,6 @@ import copy
 import csv
 import functools
 import io
-import os
 import time
 from collections.abc import Callable
 from dataclasses import astuple, dataclass, field
@@ -40,8 +39,8 @@ from behaviors.control import Fleet
 from behaviors.ddpg.checkpoint import load_actor, load_checkpoint
 from behaviors.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.errors import BehaveError
-from behaviors.export import FCD_SUFFIXES, fcd_options
-from behaviors.files import atomic_write_text, ensure_writable_dir
+from behaviors.export import FCD_SUFFIXES, fcd_options, require_projection, seal_fcd
+from behaviors.files import atomic_write_text, check_output_path, temp_path
 from behaviors.geometry import RoadGeometry, load_geometry
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID
 from behaviors.sim import SimOptions, SumoSim, VehicleState
@@ -577,40 +576,30 @@ def load_policy(config: PopulateConfig) -> tuple[Callable[[np.ndarray], np.ndarr
 
 
 def partial_path(final: Path) -> Path:
-    """Where SUMO writes while running: beside the target, same suffix (SUMO picks the format by it)."""
-    return final.with_name(f".{final.stem}.{os.getpid()}.partial{final.suffix}")
+    """Where SUMO writes while running: a temp file beside the target with its suffix (SUMO picks
+    the format by it), named so that a later run removes it if this one is killed."""
+    return temp_path(final)
 
 
-def finish_fcd(partial: Path, final: Path, config: PopulateConfig) -> None:
-    """Move SUMO's FCD into place; XML gets a deterministic header so equal seeds give equal bytes."""
-    if final.suffix != ".xml":
-        os.replace(partial, final)
-        return
+def finish_fcd(partial: Path, final: Path, config: PopulateConfig, last_time: float) -> None:
+    """Check SUMO's FCD is whole and move it into place; XML gets a deterministic header (equal
+    seeds give equal bytes) that says whether it holds lon/lat."""
     header = (
         f"<!-- behave populate: net={config.net.name} overtakers={config.overtakers} "
         f"keepers={config.keepers} background={config.background} duration={config.duration} "
-        f"step-length={config.step_length} seed={config.seed} -->\n"
+        f"step-length={config.step_length} seed={config.seed}{' geo=true' if config.geo else ''} -->\n"
     )
-    staged = partial.with_name(partial.name + ".staged")
-    with open(partial, encoding="utf-8") as src, open(staged, "w", encoding="utf-8") as dst:
-        in_comment = False
-        for line in src:
-            if not in_comment and line.startswith("<!-- generated on"):
-                in_comment = True
-                dst.write(header)
-            if in_comment:
-                in_comment = "-->" not in line
-                continue
-            dst.write(line)
-    os.replace(staged, final)
-    partial.unlink()
+    seal_fcd(partial, final, header=header, geo=config.geo, last_time=last_time, step=config.step_length)
 
 
 def populate(config: PopulateConfig, on_step: Callable[[float], None] | None = None) -> PopulateSummary:
     """Run the whole simulation; the FCD file and the per-agent table beside it appear only if the
     run completed."""
     config.validate()
-    ensure_writable_dir(config.fcd.parent)
+    check_output_path(config.fcd)
+    check_output_path(agents_csv_path(config.fcd))
+    if config.geo:
+        require_projection(config.net, "--geo writes lon/lat: the net needs a geo projection")
     torch.set_num_threads(POLICY_THREADS)
     population = Population(config)
     partial = partial_path(config.fcd)
@@ -623,15 +612,15 @@ def populate(config: PopulateConfig, on_step: Callable[[float], None] | None = N
             if on_step:
                 on_step(population.summary.simulated_s)
         agents = population.agent_rows()
+        last_time = population.sim.time - config.step_length if population.sim else 0.0
         population.close()
-        finish_fcd(partial, config.fcd, config)
+        finish_fcd(partial, config.fcd, config, last_time)
         write_agents_csv(agents_csv_path(config.fcd), agents)
         population.summary.count_agents(agents)
     finally:
         population.close()
-        for leftover in (partial, partial.with_name(partial.name + ".staged")):
-            with contextlib.suppress(FileNotFoundError):
-                leftover.unlink()
+        with contextlib.suppress(FileNotFoundError):
+            partial.unlink()
     population.summary.wall_s = time.perf_counter() - start
     population.summary.phases = dict(population.timer.seconds)
     return population.summary

@@ -9,7 +9,9 @@ close. No other module imports libsumo.
 from __future__ import annotations
 
 import contextlib
+import re
 import weakref
+import xml.etree.ElementTree as ET
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -144,7 +146,7 @@ class SumoSim:
             libsumo.start(options.command())
         except Exception as exc:  # libsumo raises its own TraCIException/FatalSumoError types
             _release(self)
-            raise BehaveError(f"SUMO could not start: {_one_line(exc)}") from None
+            raise sumo_error(exc, options, "could not start") from None
         self._closer = weakref.finalize(self, _stop, libsumo)
         self.step_length = options.step_length
         self._last = VehicleState((), np.zeros((0, 2)), np.zeros(0), {})
@@ -177,7 +179,10 @@ class SumoSim:
         return self._sumo.simulation.getTime()
 
     def step(self) -> None:
-        self._sumo.simulationStep()
+        try:
+            self._sumo.simulationStep()
+        except Exception as exc:  # SUMO loads routes as time goes on: a bad one can stop it here
+            raise sumo_error(exc, self.options, "stopped") from None
 
     def read_vehicles(self, with_distance: bool = True) -> VehicleState:
         """Position (and odometer) of every vehicle: the one per-step read of the whole fleet."""
@@ -297,6 +302,31 @@ def fast_vehicle_calls(libsumo: ModuleType) -> SimpleNamespace:
     return SimpleNamespace(**{name: call or getattr(libsumo.vehicle, name) for name, call in calls.items()})
 
 
-def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[-1] if text else type(exc).__name__
+def sumo_error(exc: BaseException, options: SimOptions, what: str) -> BehaveError:
+    """SUMO's whole message on one line, with the route files and the vehicles it concerns.
+
+    SUMO spreads an error over lines ("unterminated start tag" / "In file ..." / "At
+    line/column ..."), names a file only for XML syntax errors and a route, not its vehicle,
+    for unknown edges.
+    """
+    text = " ".join(line.strip() for line in str(exc).splitlines() if line.strip()) or type(exc).__name__
+    if options.routes and "In file" not in text:
+        text += f" (route files: {', '.join(str(p) for p in options.routes)})"
+    route = re.search(r"within the route '([^']+)'", text)
+    users = _route_users(options.routes, route[1]) if route else []
+    if users:
+        text += f" (route '{route[1]}' is driven by vehicle {', '.join(users)})"  # type: ignore[index]
+    return BehaveError(f"SUMO {what}: {text}")
+
+
+def _route_users(files: Sequence[Path], route: str, most: int = 3) -> list[str]:
+    """Ids of the first vehicles, trips or flows in `files` that use the route named `route`."""
+    users: list[str] = []
+    for path in files:
+        with contextlib.suppress(ET.ParseError, OSError):
+            for _, elem in ET.iterparse(path):
+                if elem.tag in ("vehicle", "trip", "flow") and elem.get("route") == route:
+                    users.append(f"'{elem.get('id')}'")
+                    if len(users) == most:
+                        return users
+    return users

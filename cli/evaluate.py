@@ -11,24 +11,28 @@ from rich.table import Table
 
 from behaviors.errors import BehaveError
 from behaviors.evaluate import PAPER_METRICS, plan_evaluation, run_plan, write_report
+from cli.checks import NON_NEGATIVE, POSITIVE, SEED, check_number
 
 
 def evaluate_command(
     checkpoints: Annotated[list[Path] | None, typer.Argument(help="policy checkpoints to compare")] = None,
     agents: Annotated[str, typer.Option(help="agent counts to test, e.g. 3,5,7,10")] = "3,5,7,10,12,15,20",
-    episodes: Annotated[int, typer.Option(help="episodes averaged per setting")] = 20,
+    episodes: Annotated[int, typer.Option(help="episodes averaged per setting", callback=POSITIVE)] = 20,
     behaviour: Annotated[str | None, typer.Option(help="default: the checkpoint's own")] = None,
-    overtakers: Annotated[int, typer.Option(help="overtakers (multi)")] = 0,
-    keepers: Annotated[int, typer.Option(help="lane keepers (multi)")] = 0,
+    overtakers: Annotated[int, typer.Option(help="overtakers (multi)", callback=NON_NEGATIVE)] = 0,
+    keepers: Annotated[int, typer.Option(help="lane keepers (multi)", callback=NON_NEGATIVE)] = 0,
     placement: Annotated[str | None, typer.Option(help="multi cases, e.g. A,B,C")] = None,
     scenario: Annotated[str, typer.Option(help="ring, highway or tiny")] = "ring",
-    max_steps: Annotated[int, typer.Option(help="steps per episode")] = 1000,
-    seed: Annotated[int, typer.Option(help="makes the evaluation repeatable")] = 0,
+    max_steps: Annotated[int, typer.Option(help="steps per episode", callback=POSITIVE)] = 1000,
+    seed: Annotated[int, typer.Option(help="makes the evaluation repeatable", callback=SEED)] = 0,
     baseline: Annotated[
         str | None, typer.Option(help="'sumo': SUMO's own drivers as a reference row")
     ] = None,
     opponents: Annotated[
-        int | None, typer.Option(help="slower passive cars ahead (overtaking: default as many as agents)")
+        int | None,
+        typer.Option(
+            help="slower passive cars ahead (overtaking: default as many as agents)", callback=NON_NEGATIVE
+        ),
     ] = None,
     shield: Annotated[bool, typer.Option(help="drive through populate's safety shield")] = False,
     out: Annotated[Path, typer.Option(help="directory for results.csv, results.md, metrics.png")] = Path(
@@ -74,9 +78,10 @@ SHORT = {
 
 def parse_ints(text: str) -> list[int]:
     try:
-        return [int(part) for part in text.split(",") if part.strip()]
+        counts = [int(part) for part in text.split(",") if part.strip()]
     except ValueError:
         raise BehaveError(f"--agents must be a comma-separated list of integers, got '{text}'") from None
+    return [check_number("--agents", count, strict=True) for count in counts]
 
 
 def parse_list(text: str | None) -> list[str] | None:

@@ -6,9 +6,13 @@ stderr and exit code 2, never a traceback.
 
 from __future__ import annotations
 
+import functools
+import signal
 import sys
+from typing import NoReturn
 
 import typer
+from typer import _click as click
 
 from behaviors.errors import BehaveError
 from cli import evaluate, export, populate, report, scenario, train
@@ -28,16 +32,37 @@ app.command("evaluate")(evaluate.evaluate_command)
 app.command("report")(report.report_command)
 
 
+EXIT_CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}
+"""Exit codes of a run stopped by a signal (128 + its number, as a shell reports a killed one)."""
+
+
 def main() -> None:
-    """Console-script entry point."""
+    """Console-script entry point: every failure ends in one line on stderr and a non-zero exit."""
+    stopped_by: list[int] = []
+    signal.signal(signal.SIGTERM, functools.partial(_interrupt, stopped_by))
     try:
-        app()
-    except BehaveError as exc:
-        print(f"behave: error: {exc}", file=sys.stderr)
-        sys.exit(2)
-    except OSError as exc:  # a file the user named that cannot be read or written
-        print(f"behave: error: {exc}", file=sys.stderr)
-        sys.exit(2)
-    except KeyboardInterrupt:  # outputs are atomic: nothing half-written is left behind
-        print("behave: interrupted", file=sys.stderr)
-        sys.exit(130)
+        code = app(standalone_mode=False)  # typer turns Ctrl-C into exit code 130
+    except (BehaveError, OSError) as exc:  # OSError: a file the user named that cannot be read or written
+        fail(str(exc))
+    except click.exceptions.ClickException as exc:  # usage errors, as one line
+        if not exc.format_message():  # no arguments: the help was shown
+            sys.exit(exc.exit_code)
+        fail(exc.format_message(), exc.exit_code)
+    except typer.Abort:
+        code = 130
+    if code == 130:  # outputs are atomic and temp files removed: nothing half-written is left
+        signum = stopped_by[0] if stopped_by else signal.SIGINT
+        fail(f"{'terminated' if signum == signal.SIGTERM else 'interrupted'}; nothing was left half-written",
+             EXIT_CODES[signum])  # fmt: skip
+    sys.exit(code if isinstance(code, int) else 0)
+
+
+def _interrupt(stopped_by: list[int], signum: int, frame: object) -> None:
+    """SIGTERM stops like Ctrl-C: the exception unwinds through every cleanup on its way out."""
+    stopped_by.append(signum)
+    raise KeyboardInterrupt
+
+
+def fail(message: str, code: int = 2) -> NoReturn:
+    print(f"behave: error: {message}", file=sys.stderr)
+    sys.exit(code)

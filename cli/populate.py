@@ -10,7 +10,9 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from behaviors.files import check_output_path
 from behaviors.populate import DEFAULT_POLICY, PopulateConfig, agents_csv_path, populate
+from cli.checks import NON_NEGATIVE, POSITIVE, SEED
 
 DEFAULTS = PopulateConfig()
 
@@ -19,16 +21,26 @@ def populate_command(
     net: Annotated[
         Path, typer.Option(help="SUMO .net.xml (default: the bundled 3 km highway)")
     ] = DEFAULTS.net,
-    overtakers: Annotated[int, typer.Option(help="learned overtakers")] = DEFAULTS.overtakers,
-    keepers: Annotated[int, typer.Option(help="learned lane keepers")] = DEFAULTS.keepers,
+    overtakers: Annotated[
+        int, typer.Option(help="learned overtakers", callback=NON_NEGATIVE)
+    ] = DEFAULTS.overtakers,
+    keepers: Annotated[
+        int, typer.Option(help="learned lane keepers", callback=NON_NEGATIVE)
+    ] = DEFAULTS.keepers,
     policy: Annotated[
         Path, typer.Option(help="checkpoint (default: bundled multi-behaviour policy)")
     ] = DEFAULT_POLICY,
-    background: Annotated[int, typer.Option(help="SUMO's own cars around the agents")] = DEFAULTS.background,
+    background: Annotated[
+        int, typer.Option(help="SUMO's own cars around the agents", callback=NON_NEGATIVE)
+    ] = DEFAULTS.background,
     routes: Annotated[Path | None, typer.Option(help="a SUMO routes file of your own traffic")] = None,
-    duration: Annotated[float, typer.Option(help="simulated seconds")] = DEFAULTS.duration,
-    step_length: Annotated[float, typer.Option(help="seconds per step")] = DEFAULTS.step_length,
-    seed: Annotated[int, typer.Option(help="same seed, same traces (byte for byte)")] = DEFAULTS.seed,
+    duration: Annotated[float, typer.Option(help="simulated seconds", callback=POSITIVE)] = DEFAULTS.duration,
+    step_length: Annotated[
+        float, typer.Option(help="seconds per step", callback=POSITIVE)
+    ] = DEFAULTS.step_length,
+    seed: Annotated[
+        int, typer.Option(help="same seed, same traces (byte for byte)", callback=SEED)
+    ] = DEFAULTS.seed,
     fcd: Annotated[Path, typer.Option(help="FCD output: .xml, .csv or .parquet")] = Path(
         "runs/populate/fcd.xml"
     ),
@@ -64,6 +76,8 @@ def populate_command(
             progress.start()
         progress.update(task, completed=simulated)
 
+    if plot is not None:  # found unwritable now, not after the whole run
+        check_output_path(plot)
     try:
         summary = populate(config, on_step=advance)
     finally:

@@ -11,6 +11,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from behaviors.train import TrainConfig, prepare_run
+from cli.checks import NON_NEGATIVE, POSITIVE, SEED
 
 DEFAULTS = TrainConfig()
 
@@ -20,22 +21,32 @@ def train(
     algo: Annotated[
         str, typer.Option(help="ps-ddpg (shared), ddpg (one agent) or multi-ddpg")
     ] = DEFAULTS.algo,
-    agents: Annotated[int, typer.Option(help="learning agents (lanekeeping/overtaking)")] = DEFAULTS.agents,
-    overtakers: Annotated[int, typer.Option(help="overtakers (multi)")] = 0,
-    keepers: Annotated[int, typer.Option(help="lane keepers (multi)")] = 0,
+    agents: Annotated[
+        int, typer.Option(help="learning agents (lanekeeping/overtaking)", callback=POSITIVE)
+    ] = DEFAULTS.agents,
+    overtakers: Annotated[int, typer.Option(help="overtakers (multi)", callback=NON_NEGATIVE)] = 0,
+    keepers: Annotated[int, typer.Option(help="lane keepers (multi)", callback=NON_NEGATIVE)] = 0,
     placement: Annotated[
         str, typer.Option(help="multi start: A overtakers ahead, B keepers ahead, C mixed")
     ] = "C",
     opponents: Annotated[
-        int | None, typer.Option(help="slower passive cars ahead (overtaking; multi: default 0)")
+        int | None,
+        typer.Option(help="slower passive cars ahead (overtaking; multi: default 0)", callback=NON_NEGATIVE),
     ] = None,
     episodes: Annotated[
         int | None,
-        typer.Option(help=f"episodes in all (default {DEFAULTS.episodes}; with --resume: the stored total)"),
+        typer.Option(
+            help=f"episodes in all (default {DEFAULTS.episodes}; with --resume: the stored total)",
+            callback=POSITIVE,
+        ),
     ] = None,
-    max_steps: Annotated[int, typer.Option(help="steps per episode (time limit)")] = DEFAULTS.max_steps,
-    step_length: Annotated[float, typer.Option(help="seconds per step")] = DEFAULTS.step_length,
-    seed: Annotated[int, typer.Option(help="makes the run repeatable")] = DEFAULTS.seed,
+    max_steps: Annotated[
+        int, typer.Option(help="steps per episode (time limit)", callback=POSITIVE)
+    ] = DEFAULTS.max_steps,
+    step_length: Annotated[
+        float, typer.Option(help="seconds per step", callback=POSITIVE)
+    ] = DEFAULTS.step_length,
+    seed: Annotated[int, typer.Option(help="makes the run repeatable", callback=SEED)] = DEFAULTS.seed,
     scenario: Annotated[str, typer.Option(help="ring, highway or tiny")] = DEFAULTS.scenario,
     out: Annotated[
         Path | None, typer.Option(help="run directory (default runs/BEHAVIOUR-ALGO-sSEED)")
@@ -43,23 +54,29 @@ def train(
     init: Annotated[Path | None, typer.Option(help="start from this checkpoint (curriculum)")] = None,
     resume: Annotated[Path | None, typer.Option(help="continue the run in this directory")] = None,
     updates_per_step: Annotated[
-        int | None, typer.Option(help="network updates per step (default: one per live agent)")
+        int | None,
+        typer.Option(help="network updates per step (default: one per live agent)", callback=POSITIVE),
     ] = None,
     batched_updates: Annotated[bool, typer.Option(help="do a step's updates as one big batch")] = False,
     hidden: Annotated[str, typer.Option(help="hidden layer sizes, e.g. 256,256")] = "256,256",
-    batch_size: Annotated[int, typer.Option(help="replay minibatch size")] = DEFAULTS.batch_size,
+    batch_size: Annotated[
+        int, typer.Option(help="replay minibatch size", callback=POSITIVE)
+    ] = DEFAULTS.batch_size,
     reward_scale: Annotated[
-        float, typer.Option(help="reward multiplier seen by the critic")
+        float, typer.Option(help="reward multiplier seen by the critic", callback=POSITIVE)
     ] = DEFAULTS.reward_scale,
     explore_decay_steps: Annotated[
-        int, typer.Option(help="env steps over which exploration noise decays to 0")
+        int, typer.Option(help="env steps over which exploration noise decays to 0", callback=NON_NEGATIVE)
     ] = DEFAULTS.explore_decay_steps,
     lane_weight: Annotated[
-        float, typer.Option(help="lane-discipline reward weight (0 = the paper's reward)")
+        float,
+        typer.Option(help="lane-discipline reward weight (0 = the paper's reward)", callback=NON_NEGATIVE),
     ] = DEFAULTS.lane_weight,
-    checkpoint_every: Annotated[int, typer.Option(help="episodes between numbered checkpoints")] = 10,
+    checkpoint_every: Annotated[
+        int, typer.Option(help="episodes between numbered checkpoints", callback=POSITIVE)
+    ] = 10,
     max_minutes: Annotated[
-        float | None, typer.Option(help="wall-clock budget; stops after that episode")
+        float | None, typer.Option(help="wall-clock budget; stops after that episode", callback=NON_NEGATIVE)
     ] = None,
 ) -> None:
     """Train a behaviour; Ctrl-C or SIGTERM stops it (exit 130 or 143), resumable with --resume."""
