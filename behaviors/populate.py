@@ -42,9 +42,11 @@ from behaviors.errors import BehaveError
 from behaviors.export import FCD_SUFFIXES, fcd_options, require_projection, seal_fcd
 from behaviors.files import atomic_write_text, check_output_path, temp_path
 from behaviors.geometry import RoadGeometry, load_geometry
+from behaviors.lanes import TRAFFIC_OBS_SIZE
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID
 from behaviors.sim import SimOptions, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
+from behaviors.traffic_env import desired_fractions
 from sumo_scenarios import get_scenario
 
 BACKGROUND_TYPE = "behave_background"
@@ -349,10 +351,10 @@ class Population:
         self.geometry = load_geometry(config.net)
         self.graph = route_graph(self.geometry, config.net)
         self._check_capacity()
-        self.policy, self.with_id = load_policy(config)
+        self.policy, self.with_id, driver = load_policy(config)
         self.rng = np.random.default_rng(config.seed)
         self.timer = PhaseTimer()
-        self.fleet = Fleet(self.geometry, CarModel(), config.step_length, self.timer, config.shield)
+        self.fleet = Fleet(self.geometry, CarModel(), config.step_length, self.timer, config.shield, driver)
         self.summary = PopulateSummary()
         self.log = AgentLog(config.step_length)
         self.routes: RoutePool | None = None  # made with the simulation it hands routes to
@@ -394,7 +396,10 @@ class Population:
         for _ in range(count):
             vid = f"{kind}_{self.counter[kind]}"
             self.counter[kind] += 1
-            sim.add_free_vehicle(vid, routes.draw(self.rng), vtype)
+            # agents enter at the highest speed SUMO finds safe there: at traffic speed
+            sim.add_free_vehicle(
+                vid, routes.draw(self.rng), vtype, "desired" if kind == "background" else "max"
+            )
             if kind != "background":
                 sim.take_control([vid])
             self.pending[vid] = kind
@@ -408,7 +413,7 @@ class Population:
         agents = [v for v in joined if self.pending[v] != "background"]
         if agents:
             behaviour = np.array([1.0 if self.pending[v] == "overtaker" else 0.0 for v in agents])
-            self.fleet.add(agents, sim.read_speeds(agents), behaviour)
+            self.fleet.add(agents, sim.read_speeds(agents), behaviour, desired_fractions(behaviour, self.rng))
             self.log.join(agents, [self.pending[v] for v in agents], time)
         self.background_ids.update(v for v in joined if self.pending[v] == "background")
         self.summary.vehicles += len(joined)
@@ -542,8 +547,9 @@ POLICY_THREADS = 2
 time), so a second thread halves it where a second core exists (1,000 agents: 1.6 -> 0.8 ms)."""
 
 
-def load_policy(config: PopulateConfig) -> tuple[Callable[[np.ndarray], np.ndarray], bool]:
-    """The actor as a batched function, and whether it wants the behaviour id (66 inputs)."""
+def load_policy(config: PopulateConfig) -> tuple[Callable[[np.ndarray], np.ndarray], bool, str]:
+    """The actor as a batched function, whether it wants the behaviour id (66 inputs), and its
+    driver model ("paper" for 65/66 TORCS inputs, "traffic" for the lane observation)."""
     if not config.policy.is_file():
         if config.policy == DEFAULT_POLICY:
             raise BehaveError(f"the bundled policy is missing ({DEFAULT_POLICY}); run `make pretrained`")
@@ -551,8 +557,11 @@ def load_policy(config: PopulateConfig) -> tuple[Callable[[np.ndarray], np.ndarr
     meta = load_checkpoint(config.policy).meta
     obs_dim = int(meta["obs_dim"])
     behaviour = meta.get("behaviour", "multi" if obs_dim == OBS_SIZE_WITH_ID else "lanekeeping")
-    if obs_dim not in (OBS_SIZE, OBS_SIZE_WITH_ID):
-        raise BehaveError(f"{config.policy} expects {obs_dim} observations; behave policies take 65 or 66")
+    if obs_dim not in (OBS_SIZE, OBS_SIZE_WITH_ID, TRAFFIC_OBS_SIZE):
+        raise BehaveError(
+            f"{config.policy} expects {obs_dim} observations; behave policies take "
+            f"65, 66 or {TRAFFIC_OBS_SIZE}"
+        )
     if obs_dim == OBS_SIZE and config.overtakers and config.keepers:
         raise BehaveError(
             f"{config.policy} is a {behaviour} policy: it cannot drive both keepers and overtakers "
@@ -572,7 +581,8 @@ def load_policy(config: PopulateConfig) -> tuple[Callable[[np.ndarray], np.ndarr
                 return half(x.to(torch.bfloat16)).float().numpy()
             return actor(x).numpy()
 
-    return act, obs_dim == OBS_SIZE_WITH_ID
+    driver = "traffic" if obs_dim == TRAFFIC_OBS_SIZE else "paper"
+    return act, obs_dim != OBS_SIZE, driver
 
 
 def partial_path(final: Path) -> Path:
