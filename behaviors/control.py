@@ -9,7 +9,7 @@ business (env.py for training, populate.py for any network).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -24,6 +24,12 @@ from behaviors.sim import AgentReadings, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
 
 DRIVERS = ("paper", "traffic")
+HANDOVER_DISTANCE = 250.0
+HANDOVER_SECONDS = 10.0
+"""SUMO takes an agent whose lane ends within max(250 m, 10 s at its speed) while another lane goes on."""
+HANDBACK_MARGIN = 100.0
+"""m: the policy gets the car back only when its lane leads on this much beyond that reach."""
+LANE_END_MARGIN = 20.0
 JUNCTION_LEADS_ON = 1e4
 """m: inside a junction every lane counts as leading on; SUMO is asked again on the next lane."""
 """Driver models: the paper's TORCS state, reward and heading model, or lanes.py's traffic driver."""
@@ -95,6 +101,8 @@ class AgentRows:
     lane_changed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # at the last sensing
     lane_id: list[str] = field(default_factory=list)  # lane of the cached lane ends
     lane_ends: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # own/fast/slow, lane coords
+    best_end: np.ndarray = field(default_factory=lambda: np.zeros(0))  # the edge's farthest-leading lane
+    handed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # SUMO's driver has the car
     around: Surroundings | None = None
 
     def take(self, mask: np.ndarray) -> AgentRows:
@@ -139,6 +147,7 @@ class Fleet:
         self.car = car
         self.dt = dt
         self.rows = AgentRows()
+        self.handovers = 0  # agents handed to SUMO's driver (traffic driver: exits, lane drops)
         self._located: tuple[dict[str, int], list[str], np.ndarray] | None = None
 
     def __len__(self) -> int:
@@ -178,6 +187,8 @@ class Fleet:
             lane_changed=np.concatenate([r.lane_changed, np.zeros(n, bool)]),
             lane_id=r.lane_id + [""] * n,
             lane_ends=np.concatenate([r.lane_ends, np.zeros((n, 3))]),
+            best_end=np.concatenate([r.best_end, np.zeros(n)]),
+            handed=np.concatenate([r.handed, np.zeros(n, bool)]),
         )
 
     def keep(self, mask: np.ndarray) -> None:
@@ -259,6 +270,7 @@ class Fleet:
         r.lane_number = np.where(normal, number, r.lane_number)
         r.lane_count = np.where(normal, count, r.lane_count)
         self._refresh_lane_ends(sim, readings)
+        self._hand_over(sim, readings, count, normal)
         agents = LaneAgents(
             front=vehicles.position[rows],
             road_heading=frame.heading - r.angle,
@@ -294,6 +306,36 @@ class Fleet:
             edge, _, index = lane.rpartition("_")
             k = int(index)
             r.lane_ends[i] = [ahead.get(f"{edge}_{j}", 0.0) for j in (k, k + 1, k - 1)]
+            r.best_end[i] = max(ahead.values(), default=0.0)
+
+    def _hand_over(
+        self, sim: SumoSim, readings: AgentReadings, lanes: np.ndarray, normal: np.ndarray
+    ) -> None:
+        """SUMO's strategic layer takes an agent whose lane stops leading on soon while another lane
+        of its edge goes on (an exit or a lane drop ahead), or that is on a one-lane road, and
+        hands it back once it is on a lane that leads on. The policies learnt on roads where
+        every lane goes on; SUMO knows where each route needs to be."""
+        r = self.rows
+        own_left = r.lane_ends[:, 0] - readings.lane_pos
+        reach = np.maximum(HANDOVER_DISTANCE, HANDOVER_SECONDS * r.speed)
+        ending = (own_left < reach) & (r.best_end > r.lane_ends[:, 0] + LANE_END_MARGIN)
+        needs_sumo = normal & (ending | (lanes < 2))
+        free = (
+            normal & (lanes >= 2) & ~((own_left < reach + HANDBACK_MARGIN) & (r.best_end > r.lane_ends[:, 0]))
+        )
+        give = needs_sumo & ~r.handed
+        take = r.handed & free
+        if give.any():
+            sim.hand_to_sumo([r.ids[i] for i in np.flatnonzero(give)])
+            self.handovers += int(give.sum())
+        if take.any():
+            sim.take_back([r.ids[i] for i in np.flatnonzero(take)], self.car.max_lateral_speed)
+            r.lateral_speed[take] = 0.0
+            r.angle[take] = 0.0
+        r.handed = (r.handed | give) & ~take
+        if r.handed.any():  # SUMO drives them: their speed is SUMO's
+            handed = np.flatnonzero(r.handed)
+            r.speed[handed] = sim.read_speeds([r.ids[i] for i in handed])
 
     def _shield(self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray) -> None:
         """Side limits and speed caps for the next action; reads the speed of SUMO cars leading agents."""
@@ -317,6 +359,20 @@ class Fleet:
         r.side_limit = side_limits(around.side_room)
         r.speed_cap = safe_speed(around.leader_gap, leader_speed, r.speed, self.dt, self.car)
 
+    def _without_handed(self, result: Actuation) -> Actuation:
+        """What the agents SUMO drives really do: SUMO's speed, no sideways move, never off-track."""
+        r = self.rows
+        mine = ~r.handed
+        lateral = None if result.lateral_speed is None else np.where(mine, result.lateral_speed, 0.0)
+        return replace(
+            result,
+            speed=np.where(mine, result.speed, r.speed),
+            angle=np.where(mine, result.angle, 0.0),
+            lateral_move=np.where(mine, result.lateral_move, 0.0),
+            off_track=result.off_track & mine,
+            lateral_speed=lateral,
+        )
+
     def act(self, sim: SumoSim, actions: np.ndarray) -> Actuation:
         """Apply [N, 3] actions (steer, accel, brake) for the next step; returns what was commanded."""
         r = self.rows
@@ -329,14 +385,20 @@ class Fleet:
                     actions, r.speed, r.lateral_speed, f.offset, f.half_width, f.speed_limit,
                     self.dt, self.car, self.lateral, 1.0, r.side_limit, r.speed_cap,
                 )  # fmt: skip
-                assert result.lateral_speed is not None
-                r.lateral_speed = result.lateral_speed
             else:
                 result = actuate(
                     actions, r.speed, r.angle, f.offset, f.half_width, f.curvature, f.speed_limit,
                     self.dt, self.car, r.side_limit, r.speed_cap,
                 )  # fmt: skip
-            sim.command_agents(r.ids, result.lane_speed, result.lateral_move)
+            if r.handed.any():
+                result = self._without_handed(result)
+                mine = ~r.handed
+                ids = [vid for vid, m in zip(r.ids, mine.tolist(), strict=True) if m]
+                sim.command_agents(ids, result.lane_speed[mine], result.lateral_move[mine])
+            else:
+                sim.command_agents(r.ids, result.lane_speed, result.lateral_move)
+        if result.lateral_speed is not None:
+            r.lateral_speed = result.lateral_speed
         r.angle = result.angle
         self.record_speed(result.speed)
         return result

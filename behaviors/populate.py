@@ -208,6 +208,7 @@ class PopulateSummary:
     insert_retries: int = 0
     side_cuts: int = 0  # agent-steps whose sideways move the shield cut
     speed_cuts: int = 0  # agent-steps whose speed the shield cut
+    handovers: int = 0  # times SUMO's driver took an agent (exits, lane drops, one-lane roads)
     simulated_s: float = 0.0
     wall_s: float = 0.0
     speed_sum: dict[str, float] = field(default_factory=lambda: {"keeper": 0.0, "overtaker": 0.0})
@@ -230,6 +231,7 @@ class PopulateSummary:
             "insert_retries": self.insert_retries,
             "shield_side_cuts": self.side_cuts,
             "shield_speed_cuts": self.speed_cuts,
+            "handovers_to_sumo": self.handovers,
             "simulated_s": self.simulated_s,
             "wall_s": self.wall_s,
             "real_time_factor": self.real_time_factor,
@@ -439,6 +441,7 @@ class Population:
             off_track = actuation.off_track
             self.summary.side_cuts += int(actuation.side_cut.sum())
             self.summary.speed_cuts += int(actuation.speed_cut.sum())
+            self.summary.handovers = fleet.handovers
         with self.timer.phase("sumo"):
             sim.step()
         with self.timer.phase("read"):

@@ -36,6 +36,11 @@ COLLISION_OPTIONS = (
 )
 
 
+SUMO_SPEED_MODE = 31
+SUMO_LANE_CHANGE_MODE = 1621
+"""SUMO's default speed and lane-change modes: its own safe driving and strategic lane choice."""
+
+
 @dataclass(frozen=True)
 class SimOptions:
     """Everything that determines a SUMO run besides the vehicles behave adds."""
@@ -269,6 +274,24 @@ class SumoSim:
         for vid in ids:
             v.setSpeedMode(vid, 0)
             v.setLaneChangeMode(vid, 0)
+
+    def hand_to_sumo(self, ids: Sequence[str]) -> None:
+        """SUMO's own driver takes these agents (default speed and lane-change modes), with the
+        lateral comfort of SUMO's drivers (1 m/s^2, 1 m/s) instead of the agents' exact moves."""
+        v = self._sumo.vehicle
+        for vid in ids:
+            v.setSpeedMode(vid, SUMO_SPEED_MODE)
+            v.setLaneChangeMode(vid, SUMO_LANE_CHANGE_MODE)
+            v.setParameter(vid, "laneChangeModel.lcAccelLat", "1.0")
+            v.setMaxSpeedLat(vid, 1.0)
+
+    def take_back(self, ids: Sequence[str], max_speed_lat: float) -> None:
+        """The policy drives again: checks off, and `changeSublane` exact again (see vtypes)."""
+        v = self._sumo.vehicle
+        self.take_control(ids)
+        for vid in ids:
+            v.setParameter(vid, "laneChangeModel.lcAccelLat", "100")
+            v.setMaxSpeedLat(vid, max_speed_lat)
 
     def remove(self, ids: Sequence[str], reason: int = 0) -> None:
         v = self._sumo.vehicle

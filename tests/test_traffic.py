@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import subprocess
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from behaviors.actuation import CarModel, LaneDriving, actuate_lanes
+from behaviors.control import Fleet
 from behaviors.env import make_env
+from behaviors.geometry import load_geometry
 from behaviors.lanes import (
     GAP_RANGE,
     TRAFFIC_OBS_SIZE,
@@ -17,6 +22,10 @@ from behaviors.lanes import (
     surroundings,
 )
 from behaviors.rewards import TrafficStep, TrafficWeights, traffic_rewards
+from behaviors.sim import SimOptions, SumoSim
+from behaviors.sumo_home import sumo_binary
+from behaviors.timing import PhaseTimer
+from sumo_scenarios import get_scenario
 
 
 def one_agent(**over) -> LaneAgents:
@@ -190,3 +199,54 @@ def test_traffic_env_runs_an_episode_among_sumo_cars():
         np.testing.assert_array_equal(first, obs)  # one seed, one episode
     finally:
         env.close()
+
+
+def exit_net(tmp: Path) -> Path:
+    """A 3-lane motorway whose rightmost lane becomes an exit: the main road goes on with 2 lanes."""
+    (tmp / "x.nod.xml").write_text(
+        '<nodes><node id="n0" x="0" y="0"/><node id="n1" x="800" y="0"/>'
+        '<node id="n2" x="1600" y="0"/><node id="n3" x="1000" y="-80"/></nodes>'
+    )
+    (tmp / "x.edg.xml").write_text(
+        '<edges><edge id="A" from="n0" to="n1" numLanes="3" speed="33.33" width="3.5"/>'
+        '<edge id="B" from="n1" to="n2" numLanes="2" speed="33.33" width="3.5"/>'
+        '<edge id="X" from="n1" to="n3" numLanes="1" speed="22.22" width="3.5"/></edges>'
+    )
+    (tmp / "x.con.xml").write_text(
+        '<connections><connection from="A" to="X" fromLane="0" toLane="0"/>'
+        '<connection from="A" to="B" fromLane="1" toLane="0"/>'
+        '<connection from="A" to="B" fromLane="2" toLane="1"/></connections>'
+    )
+    net = tmp / "x.net.xml"
+    subprocess.run(
+        [sumo_binary("netconvert"), "-n", str(tmp / "x.nod.xml"), "-e", str(tmp / "x.edg.xml"),
+         "-x", str(tmp / "x.con.xml"), "-o", str(net), "--no-turnarounds"],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    return net
+
+
+def test_sumo_takes_an_agent_whose_lane_becomes_an_exit_and_hands_it_back(tmp_path):
+    """Without the handover SUMO stops the agent dead where lane 0 turns off its route."""
+    net = exit_net(tmp_path)
+    geometry = load_geometry(net)
+    fleet = Fleet(geometry, CarModel(), 0.2, PhaseTimer(), driver="traffic")
+    options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
+    with SumoSim(options) as sim:
+        sim.add_route("main", ["A", "B"])
+        sim.add_vehicle("agent", "main", "behave_keeper", lane=0, pos=50.0, speed=25.0)
+        sim.step()
+        sim.take_control(["agent"])
+        fleet.add(["agent"], np.array([25.0]), np.array([0.0]), np.array([0.8]))
+        handed_at_some_point, lowest_speed, steps = False, 99.0, 0
+        while "agent" in sim.vehicle_ids() and steps < 600:
+            fleet.sense(sim, sim.read_vehicles(), True)
+            handed_at_some_point |= bool(fleet.rows.handed[0])
+            fleet.act(sim, np.array([[0.0, 0.25, 0.0]], np.float32))
+            sim.step()
+            steps += 1
+            if "agent" in sim.vehicle_ids():
+                lowest_speed = min(lowest_speed, float(sim.read_speeds(["agent"])[0]))
+        assert handed_at_some_point and fleet.handovers == 1
+        assert "agent" not in sim.vehicle_ids()  # it reached the end of B
+        assert lowest_speed > 15.0  # never stopped at the end of the exit lane
