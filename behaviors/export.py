@@ -357,6 +357,8 @@ def export_fcd(fcd: Path, fmt: str, *, net: Path | None, out: Path) -> list[Path
         raise BehaveError(f"FCD file not found: {fcd}")
     source_format = _fcd_format(fcd)
     projection = _projection_needed(fcd, fmt, net)
+    if not out.parent.is_dir():
+        raise BehaveError(f"output directory does not exist: {out.parent}")
     for path in _output_names(fmt, out.name).values():
         check_output_path(out.with_name(path))
     work = temp_dir(out)

@@ -11,6 +11,7 @@ from rich.table import Table
 
 from behaviors.errors import BehaveError
 from behaviors.evaluate import PAPER_METRICS, plan_evaluation, run_plan, write_report
+from behaviors.files import check_output_path
 from cli.checks import NON_NEGATIVE, POSITIVE, SEED, check_number
 
 
@@ -46,6 +47,8 @@ def evaluate_command(
         seed=seed, max_steps=max_steps, baseline=baseline, opponents=opponents, shield=shield,
     )  # fmt: skip
     console = Console()
+    for name in ("results.csv", "results.md", "metrics.png"):  # found unwritable now, not after the run
+        check_output_path(out / name)
     results = run_plan(plan, on_setting=lambda p, s: console.print(f"evaluating {p}: {s}", style="dim"))
     table = Table(title=f"behave evaluate ({episodes} episodes per setting)")
     columns = ["policy", "setting", *(m for m, _ in PAPER_METRICS), "off_tracks", "mean_speed_frac"]

@@ -18,7 +18,11 @@ def export_command(
     to: Annotated[str, typer.Option("--to", help=f"target format: {', '.join(EXPORT_FORMATS)}")],
     out: Annotated[Path, typer.Option(help="output file (ns2 also writes .config and .activity beside it)")],
     net: Annotated[
-        Path | None, typer.Option(help="the network (needed for lon/lat formats: gpx, kml)")
+        Path | None,
+        typer.Option(
+            help="the network (.net.xml or .net.xml.gz): projects metres to lon/lat for gpx/kml, "
+            "or a geo FCD back to metres for ns2/omnet/ipg"
+        ),
     ] = None,
 ) -> None:
     """Convert FCD with SUMO's traceExporter, fixing the outputs it writes malformed."""

@@ -183,8 +183,8 @@ def test_unwritable_output_dir_is_refused(run: Path, tmp_path: Path, monkeypatch
         def refuse(**_: object) -> str:
             raise PermissionError(13, "Permission denied")
 
-        monkeypatch.setattr("behaviors.export.tempfile.mkdtemp", refuse)
-    with pytest.raises(BehaveError, match="output directory is not writable"):
+        monkeypatch.setattr("behaviors.files.tempfile.mkdtemp", refuse)
+    with pytest.raises(BehaveError, match="not writable|Permission denied"):
         export_fcd(run / "run.xml", "ns2", net=None, out=locked / "t.tcl")
     assert not list(locked.iterdir())
 

@@ -64,7 +64,7 @@ def full_disk(tmp_path: Path):
     try:
         yield mount
     finally:
-        subprocess.run(["umount", str(mount)], check=False)
+        subprocess.run(["umount", "--lazy", str(mount)], check=False)  # even if a killed writer holds it
 
 
 # 1. full disk ---------------------------------------------------------------------------------
@@ -171,6 +171,7 @@ MALFORMED = """<routes>
         (UNKNOWN_EDGE, ("unknown.rou.xml", "'v0'", "'nope1'")),
         (MALFORMED, ("malformed.rou.xml", "unterminated", "4/24")),
     ],
+    ids=["unknown-edge", "malformed"],
 )
 def test_sumo_errors_name_the_file_the_vehicle_and_the_edge(
     tmp_path: Path, text: str, named: tuple[str, ...]
@@ -221,6 +222,10 @@ def test_output_paths_are_checked_before_anything_runs(tmp_path: Path):
     done = run_behave("populate", "--duration", "2", "--fcd", str(fcd), "--plot", str(directory))
     assert "it is a directory" in one_error_line(done.stderr)
     assert not fcd.exists()  # refused before SUMO ran, not after
+    (directory.parent / "results.md").mkdir()
+    done = run_behave("evaluate", "--baseline", "sumo", "--agents", "1", "--out", str(directory.parent))
+    assert "results.md: it is a directory" in one_error_line(done.stderr)
+    assert not (directory.parent / "results.csv").exists()  # refused before the evaluation ran
     (tmp_path / "in.csv").write_text("timestep_time;vehicle_id\n0.00;a\n")
     with pytest.raises(BehaveError, match="it is a directory"):
         export_fcd(tmp_path / "in.csv", "ipg", net=None, out=directory)
