@@ -3,9 +3,10 @@
 Two things are derived once per network and then queried vectorised for all
 agents each step:
 
-* the carriageway borders of every normal edge (junction internals ignored) as
-  line segments, indexed by a coarse grid so a ray only tests nearby segments;
-* per lane, the centre-line shape with cumulative length, tangent angle and
+* the carriageway borders of every normal edge with two or more car lanes (junction
+  internals ignored) as line segments, indexed by a coarse grid (built on first use) so a
+  ray only tests nearby segments;
+* per car lane (normal and junction-internal), the centre-line shape with cumulative length, tangent angle and
   curvature, so a (lane, lane position) pair gives the road axis direction and
   curvature without asking SUMO (whose lane angles are piecewise constant).
 
@@ -14,12 +15,20 @@ Angles here are mathematical: radians, counter-clockwise from +x.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import contextlib
+import functools
+import gzip
+import io
+import xml.etree.ElementTree as ET
+import zipfile
+from collections.abc import Callable, Sequence
+from dataclasses import astuple, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from behaviors.errors import BehaveError
+from behaviors.files import atomic_write_bytes
 
 RAY_RANGE = 200.0
 """Range of the track-edge and opponent sensors, metres (as in TORCS)."""
@@ -37,32 +46,42 @@ _LANE_GAP = 1.0e6
 """Spacing between lanes in the concatenated lane-position axis (keeps lanes apart)."""
 
 
+CAR_CLASS = "passenger"
+"""The SUMO vehicle class of behave's cars: only lanes (and connections) it may use are road."""
+
+CACHE_VERSION = 1
+"""Bumped whenever what the geometry cache holds changes: older caches are rebuilt."""
+
+CACHE_MIN_BYTES = 2_000_000
+"""Nets smaller than this are read in well under a second: no cache file is left beside them."""
+
+
 @dataclass(frozen=True)
 class EdgeInfo:
-    """What the controller needs to know about a normal edge's carriageway."""
+    """What the controller needs to know about a normal edge's carriageway (its car lanes)."""
 
-    lanes: int
+    lanes: int  # lanes a passenger car may use
     lane_width: float
     speed: float
-    length: float  # SUMO's length of the edge's rightmost lane, metres
+    length: float  # SUMO's length of the edge's rightmost car lane, metres
     normal: bool  # False for junction-internal edges
 
 
 @dataclass(frozen=True)
 class RoadGeometry:
-    """Borders (segments + culling grid) and lane axes of a network's normal edges."""
+    """Borders (segments + culling grid) of the multi-lane car edges, and lane axes of every car lane.
+
+    Lane rows number car lanes only: `lane_number` counts from the rightmost car lane (a
+    sidewalk or bus lane beside it is no lane of the carriageway), `lane_num_lanes` is the
+    edge's number of car lanes.
+    """
 
     seg_a: np.ndarray  # [M, 2] segment start points
     seg_b: np.ndarray  # [M, 2] segment end points
-    seg_za: np.ndarray  # [M] complex: seg_a as x + iy (car-frame transforms are one multiply)
-    seg_zb: np.ndarray  # [M] complex: seg_b as x + iy
-    cell_keys: np.ndarray  # [C] sorted (grid cell, heading sector) keys that have candidates
-    cell_start: np.ndarray  # [C + 1] key i's candidates are cell_segments[cell_start[i]:cell_start[i + 1]]
-    cell_segments: np.ndarray  # [total] segment ids per key, key after key
     lane_index: dict[str, int]  # lane id -> row in the lane tables
     lane_edge: list[str]  # lane row -> edge id
-    lane_number: np.ndarray  # [L] index of the lane within its edge (0 = rightmost)
-    lane_num_lanes: np.ndarray  # [L] lanes of the lane's edge
+    lane_number: np.ndarray  # [L] index of the lane among its edge's car lanes (0 = rightmost)
+    lane_num_lanes: np.ndarray  # [L] car lanes of the lane's edge
     lane_normal: np.ndarray  # [L] bool, False for junction-internal lanes
     lane_width: np.ndarray  # [L] lane width, metres
     lane_speed: np.ndarray  # [L] speed limit, m/s
@@ -72,6 +91,27 @@ class RoadGeometry:
     axis_angle: np.ndarray  # [P] unwrapped tangent angle at each vertex
     axis_curvature: np.ndarray  # [P] curvature of the segment starting at vertex
     edges: dict[str, EdgeInfo]
+    car_successors: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    """Normal edge -> the normal edges a passenger car may drive on to (car lanes, car connections)."""
+    lefthand: bool = False
+
+    @functools.cached_property
+    def seg_za(self) -> np.ndarray:
+        """seg_a as x + iy (car-frame transforms are one multiply)."""
+        return self.seg_a[:, 0] + 1j * self.seg_a[:, 1]
+
+    @functools.cached_property
+    def seg_zb(self) -> np.ndarray:
+        return self.seg_b[:, 0] + 1j * self.seg_b[:, 1]
+
+    @functools.cached_property
+    def _table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The ray culling table, built on first use: only the paper driver's track rays need it."""
+        return candidate_table(self.seg_a, self.seg_b)
+
+    cell_keys = property(lambda self: self._table[0])  # sorted (grid cell, heading sector) keys
+    cell_start = property(lambda self: self._table[1])  # [C + 1] offsets into cell_segments
+    cell_segments = property(lambda self: self._table[2])  # segment ids per key, key after key
 
     def road_axis(self, lane_rows: np.ndarray, lane_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tangent angle (interpolated between vertex tangents) and curvature at lane positions."""
@@ -108,39 +148,164 @@ def cell_key(points: np.ndarray) -> np.ndarray:
     return cells[:, 0] * (1 << 21) + cells[:, 1]
 
 
-def load_geometry(net_file: Path | str) -> RoadGeometry:
-    """Read a .net.xml with sumolib; BehaveError if it is missing, malformed or has no multi-lane edge."""
-    import sumolib  # imported here: sumolib is slow to import and only needed once per net
+def allows_car(allow: str | None, disallow: str | None) -> bool:
+    """Whether SUMO's allow/disallow lists (a lane's or a connection's) let a passenger car pass."""
+    if allow is not None:
+        return bool({CAR_CLASS, "all"} & set(allow.split()))
+    return disallow is None or not {CAR_CLASS, "all"} & set(disallow.split())
 
+
+@dataclass
+class NetTables:
+    """What behave reads of a .net.xml: every edge's car lanes and the car connections."""
+
+    edges: list[tuple[str, list[LaneSpec], bool]] = field(default_factory=list)  # see build_geometry
+    links: set[tuple[str, str]] = field(default_factory=set)  # normal -> normal, any connection
+    car_links: set[tuple[str, str]] = field(default_factory=set)  # ... that a passenger car may take
+    lefthand: bool = False
+
+
+def read_net(path: Path) -> NetTables:
+    """Edges (normal and junction-internal) with their car lanes, and connections, in one streaming
+    pass of the standard library's C parser: sumolib's object model took minutes on region nets."""
+    out = NetTables()
+    car_lane: set[str] = set()
+    normal: set[str] = set()
+    opener = gzip.open if path.read_bytes()[:2] == b"\x1f\x8b" else open
+    with opener(path, "rb") as stream:
+        for event, elem in ET.iterparse(stream, events=("start", "end")):
+            if event == "start":
+                if elem.tag == "net":
+                    out.lefthand = elem.get("lefthand") == "true"
+                continue
+            if elem.tag == "edge":
+                function = elem.get("function", "normal")
+                if function in ("normal", "internal"):
+                    lanes = [
+                        lane_spec(lane)
+                        for lane in elem.iter("lane")
+                        if allows_car(lane.get("allow"), lane.get("disallow"))
+                    ]
+                    car_lane.update(spec[0] for spec in lanes)
+                    if function == "normal":
+                        normal.add(elem.get("id"))
+                    if lanes:
+                        out.edges.append((elem.get("id"), lanes, function == "normal"))
+                elem.clear()
+            elif elem.tag == "connection":
+                src, dst = elem.get("from"), elem.get("to")
+                if src in normal and dst in normal:
+                    out.links.add((src, dst))
+                    lanes = (f"{src}_{elem.get('fromLane')}", f"{dst}_{elem.get('toLane')}")
+                    if all(lane in car_lane for lane in lanes) and allows_car(
+                        elem.get("allow"), elem.get("disallow")
+                    ):
+                        out.car_links.add((src, dst))
+                elem.clear()
+    return out
+
+
+def lane_spec(lane: ET.Element) -> LaneSpec:
+    shape = [tuple(map(float, point.split(",")[:2])) for point in lane.get("shape", "").split()]
+    width = float(lane.get("width", DEFAULT_LANE_WIDTH))
+    return (lane.get("id", ""), shape, width, float(lane.get("speed", 13.89)), float(lane.get("length", 0.0)))
+
+
+DEFAULT_LANE_WIDTH = 3.2
+"""SUMO's lane width where the net does not name one."""
+
+
+def load_geometry(
+    net_file: Path | str, cache: bool = False, on_status: Callable[[str], None] | None = None
+) -> RoadGeometry:
+    """The geometry of a .net.xml (or .net.xml.gz); BehaveError if it is missing, malformed or has no
+    multi-lane car edge.
+
+    With `cache`, a net of CACHE_MIN_BYTES or more keeps its geometry beside it
+    (`<net>.behave-geometry.npz`, valid while the net's size and mtime and CACHE_VERSION hold),
+    written atomically; a folder that cannot be written just gets no cache.
+    """
     path = Path(net_file)
     if not path.is_file():
         raise BehaveError(f"network file not found: {path}")
+    say = on_status or (lambda _: None)
+    stat = path.stat()
+    key = np.array([CACHE_VERSION, stat.st_size, stat.st_mtime_ns], np.int64)
+    cached = cache_path(path)
+    if cache and stat.st_size >= CACHE_MIN_BYTES:
+        geometry = read_cache(cached, key)
+        if geometry is not None:
+            say(f"road geometry read from {cached.name}")
+            return geometry
+    say(f"reading network {path.name} ({stat.st_size / 1e6:.1f} MB)")
     try:
-        net = sumolib.net.readNet(str(path), withInternal=True)
-    except Exception as exc:  # sumolib raises SAX errors, KeyErrors, ... on bad files
+        tables = read_net(path)
+    except (ET.ParseError, OSError, ValueError, EOFError) as exc:
         raise BehaveError(f"cannot read network {path}: {type(exc).__name__}: {exc}") from None
-    edges = net.getEdges(withInternal=True)
-    if not any(e.getFunction() == "" and e.getLaneNumber() >= 2 for e in edges):
+    if not any(is_normal and len(lanes) >= 2 for _, lanes, is_normal in tables.edges):
         raise BehaveError(f"network {path} has no multi-lane edge; behave needs at least one")
-    specs = [
-        (
-            e.getID(),
-            [
-                (ln.getID(), ln.getShape(), ln.getWidth(), ln.getSpeed(), ln.getLength())
-                for ln in e.getLanes()
-            ],
-            e.getFunction() == "",
-        )
-        for e in edges
-    ]
-    links = [
-        (e.getID(), succ.getID())
-        for e in edges
-        if e.getFunction() == ""
-        for succ in e.getOutgoing()
-        if succ.getFunction() == ""
-    ]
-    return build_geometry(specs, links)
+    say(f"building road geometry of {len(tables.edges):,} edges")
+    geometry = build_geometry(tables.edges, sorted(tables.links), tables.lefthand, sorted(tables.car_links))
+    if cache and stat.st_size >= CACHE_MIN_BYTES:
+        with contextlib.suppress(BehaveError):
+            write_cache(cached, key, geometry)
+            say(f"road geometry cached in {cached.name}")
+    return geometry
+
+
+def cache_path(net: Path) -> Path:
+    return net.with_name(f"{net.name}.behave-geometry.npz")
+
+
+LANE_TABLES = (
+    *("lane_number", "lane_num_lanes", "lane_normal", "lane_width", "lane_speed", "lane_length_scale"),
+    *("lane_base", "axis_s", "axis_angle", "axis_curvature", "seg_a", "seg_b"),
+)
+
+
+def write_cache(path: Path, key: np.ndarray, g: RoadGeometry) -> None:
+    """The geometry as plain arrays (no pickles), complete or absent."""
+    edge_ids = list(g.edges)
+    edge_row = {e: k for k, e in enumerate(edge_ids)}
+    info = np.array([astuple(g.edges[e]) for e in edge_ids], float).reshape(-1, 5)
+    pairs = np.array(
+        [(edge_row[a], edge_row[b]) for a, succ in g.car_successors.items() for b in succ], np.int64
+    )
+    out = io.BytesIO()
+    np.savez(
+        out, key=key, lefthand=np.array(g.lefthand), lane_ids=np.array(list(g.lane_index), str),
+        lane_edge=np.array([edge_row[e] for e in g.lane_edge], np.int64), edge_ids=np.array(edge_ids, str),
+        edge_info=info, successors=pairs.reshape(-1, 2), **{name: getattr(g, name) for name in LANE_TABLES},
+    )  # fmt: skip
+    atomic_write_bytes(path, out.getvalue())
+
+
+def read_cache(path: Path, key: np.ndarray) -> RoadGeometry | None:
+    """The cached geometry if the cache is there, readable and made from this very net file."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if not np.array_equal(data["key"], key):
+                return None
+            arrays = {name: data[name] for name in data.files}
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+        return None
+    edge_ids = arrays["edge_ids"].tolist()
+    edges = {
+        e: EdgeInfo(int(row[0]), float(row[1]), float(row[2]), float(row[3]), bool(row[4]))
+        for e, row in zip(edge_ids, arrays["edge_info"].tolist(), strict=True)
+    }
+    successors: dict[str, list[str]] = {}
+    for a, b in arrays["successors"].tolist():
+        successors.setdefault(edge_ids[a], []).append(edge_ids[b])
+    lane_ids = arrays["lane_ids"].tolist()
+    return RoadGeometry(
+        lane_index={lane: k for k, lane in enumerate(lane_ids)},
+        lane_edge=[edge_ids[k] for k in arrays["lane_edge"].tolist()],
+        edges=edges,
+        car_successors={e: tuple(succ) for e, succ in successors.items()},
+        lefthand=bool(arrays["lefthand"]),
+        **{name: arrays[name] for name in LANE_TABLES},
+    )
 
 
 LaneSpec = tuple[str, list[tuple[float, float]], float, float, float]
@@ -148,98 +313,131 @@ LaneSpec = tuple[str, list[tuple[float, float]], float, float, float]
 
 
 def build_geometry(
-    edges: list[tuple[str, list[LaneSpec], bool]], links: list[tuple[str, str]] = ()
+    edges: list[tuple[str, list[LaneSpec], bool]],
+    links: Sequence[tuple[str, str]] = (),
+    lefthand: bool = False,
+    car_links: Sequence[tuple[str, str]] = (),
 ) -> RoadGeometry:
-    """Geometry from plain edge/lane data (lanes ordered right to left, as SUMO numbers them).
+    """Geometry from plain edge/lane data (car lanes ordered as SUMO numbers them, lane 0 outermost).
 
-    Each edge comes with a flag: True for a normal edge (its carriageway borders
-    are sensed), False for a junction-internal one (only its lane axes are kept,
-    so a car crossing a junction still knows the road direction). `links` joins
-    the borders of consecutive normal edges across short junction gaps.
+    Each edge comes with a flag: True for a normal edge, False for a junction-internal one
+    (only its lane axes are kept, so a car crossing a junction still knows the road
+    direction). Borders are sensed only along normal edges with two or more car lanes, the
+    roads agents drive themselves; `links` joins the borders of consecutive such edges across
+    short junction gaps. In left-hand nets lane 0 is the leftmost lane, so the outer border is
+    on its left.
     """
-    seg_a: list[np.ndarray] = []
-    seg_b: list[np.ndarray] = []
-    lane_index: dict[str, int] = {}
-    lane_edge: list[str] = []
-    numbers, counts, widths, speeds, scales, bases, normals = [], [], [], [], [], [], []
-    axis_s, axis_angle, axis_curv = [], [], []
-    infos: dict[str, EdgeInfo] = {}
-    base = 0.0
-    borders: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for edge_id, lanes, normal in edges:
-        if normal:
-            right = offset_polyline(np.asarray(lanes[0][1], float), -lanes[0][2] / 2)
-            left = offset_polyline(np.asarray(lanes[-1][1], float), lanes[-1][2] / 2)
-            borders[edge_id] = (right, left)
-            for border in (right, left):
-                seg_a.append(border[:-1])
-                seg_b.append(border[1:])
-        infos[edge_id] = EdgeInfo(
-            lanes=len(lanes),
-            lane_width=float(np.mean([spec[2] for spec in lanes])),
-            speed=float(max(spec[3] for spec in lanes)),
-            length=float(lanes[0][4]),
-            normal=normal,
-        )
-        for number, (lane_id, shape, width, speed, length) in enumerate(lanes):
-            pts = np.asarray(shape, float)
-            s, angle, curvature = polyline_axis(pts)
-            lane_index[lane_id] = len(lane_edge)
-            lane_edge.append(edge_id)
-            numbers.append(number)
-            counts.append(len(lanes))
-            normals.append(normal)
-            widths.append(width)
-            speeds.append(speed)
-            scales.append(s[-1] / length if length > 0 else 1.0)
-            bases.append(base)
-            axis_s.append(base + s)
-            axis_angle.append(angle)
-            axis_curv.append(curvature)
-            base += s[-1] + _LANE_GAP
+    borders = edge_borders(edges, lefthand)
+    seg_a: list[np.ndarray] = [np.zeros((0, 2))]
+    seg_b: list[np.ndarray] = [np.zeros((0, 2))]
+    for pair in borders.values():
+        for border in pair:
+            seg_a.append(border[:-1])
+            seg_b.append(border[1:])
     for src, dst in links:
-        for end, start in zip(borders[src], borders[dst], strict=True):
-            if np.linalg.norm(start[0] - end[-1]) < JUNCTION_GAP:
-                seg_a.append(end[-1:])
-                seg_b.append(start[:1])
+        if src in borders and dst in borders:
+            for end, start in zip(borders[src], borders[dst], strict=True):
+                if np.linalg.norm(start[0] - end[-1]) < JUNCTION_GAP:
+                    seg_a.append(end[-1:])
+                    seg_b.append(start[:1])
     a = np.concatenate(seg_a)
     b = np.concatenate(seg_b)
     keep = np.linalg.norm(b - a, axis=1) > 1e-6
-    a, b = a[keep], b[keep]
-    keys, start, segments = candidate_table(a, b)
+    specs = [spec for _, lanes, _ in edges for spec in lanes]
+    axes = lane_axes([spec[1] for spec in specs], np.array([spec[4] for spec in specs], float))
+    successors: dict[str, list[str]] = {}
+    for src, dst in car_links:
+        successors.setdefault(src, []).append(dst)
     return RoadGeometry(
-        seg_a=a,
-        seg_b=b,
-        seg_za=a[:, 0] + 1j * a[:, 1],
-        seg_zb=b[:, 0] + 1j * b[:, 1],
-        cell_keys=keys,
-        cell_start=start,
-        cell_segments=segments,
-        lane_index=lane_index,
-        lane_edge=lane_edge,
-        lane_number=np.asarray(numbers, np.int64),
-        lane_num_lanes=np.asarray(counts, np.int64),
-        lane_normal=np.asarray(normals, bool),
-        lane_width=np.asarray(widths, float),
-        lane_speed=np.asarray(speeds, float),
-        lane_length_scale=np.asarray(scales, float),
-        lane_base=np.asarray(bases, float),
-        axis_s=np.concatenate(axis_s),
-        axis_angle=np.concatenate(axis_angle),
-        axis_curvature=np.concatenate(axis_curv),
-        edges=infos,
+        seg_a=a[keep],
+        seg_b=b[keep],
+        lane_index={spec[0]: k for k, spec in enumerate(specs)},
+        lane_edge=[edge_id for edge_id, lanes, _ in edges for _ in lanes],
+        lane_number=np.concatenate([np.arange(len(lanes)) for _, lanes, _ in edges]).astype(np.int64),
+        lane_num_lanes=np.repeat(
+            [len(lanes) for _, lanes, _ in edges], [len(lanes) for _, lanes, _ in edges]
+        ).astype(np.int64),
+        lane_normal=np.repeat(
+            [normal for _, _, normal in edges], [len(lanes) for _, lanes, _ in edges]
+        ).astype(bool),
+        lane_width=np.array([spec[2] for spec in specs], float),
+        lane_speed=np.array([spec[3] for spec in specs], float),
+        edges={edge_id: edge_info(lanes, normal) for edge_id, lanes, normal in edges},
+        car_successors={e: tuple(succ) for e, succ in successors.items()},
+        lefthand=lefthand,
+        **axes,
     )
 
 
-def polyline_axis(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cumulative length, vertex tangent angle (mean of adjacent segments) and segment curvature."""
-    d = np.diff(points, axis=0)
-    length = np.hypot(d[:, 0], d[:, 1])
-    seg_angle = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
-    s = np.concatenate([[0.0], np.cumsum(length)])
-    vertex = np.concatenate([[seg_angle[0]], (seg_angle[:-1] + seg_angle[1:]) / 2, [seg_angle[-1]]])
-    curvature = np.append(np.diff(vertex) / np.maximum(length, 1e-9), 0.0)
-    return s, vertex, curvature
+def edge_info(lanes: list[LaneSpec], normal: bool) -> EdgeInfo:
+    return EdgeInfo(
+        lanes=len(lanes),
+        lane_width=float(np.mean([spec[2] for spec in lanes])),
+        speed=float(max(spec[3] for spec in lanes)),
+        length=float(lanes[0][4]),
+        normal=normal,
+    )
+
+
+def edge_borders(
+    edges: list[tuple[str, list[LaneSpec], bool]], lefthand: bool
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Outer (lane 0 side) and inner border of each normal edge with two or more car lanes."""
+    outward = 1.0 if lefthand else -1.0  # lane 0 lies on the right of keep-right carriageways
+    return {
+        edge_id: (
+            offset_polyline(np.asarray(lanes[0][1], float), outward * lanes[0][2] / 2),
+            offset_polyline(np.asarray(lanes[-1][1], float), -outward * lanes[-1][2] / 2),
+        )
+        for edge_id, lanes, normal in edges
+        if normal and len(lanes) >= 2
+    }
+
+
+def lane_axes(shapes: list[list[tuple[float, float]]], lengths: np.ndarray) -> dict[str, np.ndarray]:
+    """Every lane's axis on one concatenated position axis, vectorised over all lanes at once
+    (a Python loop per lane took most of the set-up of a region net).
+
+    Per vertex: position (lane base + arc length), tangent (mean of the adjacent segments'
+    unwrapped angles) and the curvature of the segment starting there (0 at a lane's end).
+    """
+    counts = np.array([len(shape) for shape in shapes], np.int64)
+    points = np.array([point for shape in shapes for point in shape], float).reshape(-1, 2)
+    lane = np.repeat(np.arange(len(shapes)), counts)
+    first = np.cumsum(counts) - counts
+    last = first + counts - 1
+    inner = np.ones(len(points), bool)
+    inner[last] = False  # a segment starts at every vertex but the lane's last
+    d = np.diff(points, axis=0, append=points[-1:])
+    length = np.where(inner, np.hypot(d[:, 0], d[:, 1]), 0.0)
+    raw = np.arctan2(d[:, 1], d[:, 0])
+    step = np.diff(raw, prepend=raw[:1])
+    wrapped = (step + np.pi) % (2 * np.pi) - np.pi
+    wrapped[(wrapped == -np.pi) & (step > 0)] = np.pi  # as np.unwrap does
+    wrapped[first] = 0.0
+    turned = np.cumsum(wrapped)
+    seg_angle = raw[first][lane] + turned - turned[first][lane]  # valid where `inner`
+    starts = np.zeros(len(points), bool)
+    starts[first] = True
+    index = np.arange(len(points))
+    before = np.where(starts, index, index - 1)
+    vertex = np.where(inner, seg_angle, seg_angle[before])
+    middle = inner & ~starts
+    vertex = np.where(middle, (seg_angle[before] + seg_angle) / 2, vertex)
+    vertex[first] = seg_angle[first]
+    run = np.cumsum(length) - length  # arc length before each vertex, over all lanes
+    arc = run - run[first][lane]
+    total = arc[last]
+    base = np.cumsum(total + _LANE_GAP) - (total + _LANE_GAP)
+    after = np.append(vertex[1:], 0.0)
+    curvature = np.where(inner, (after - vertex) / np.maximum(length, 1e-9), 0.0)
+    return {
+        "lane_length_scale": np.where(lengths > 0, total / np.where(lengths > 0, lengths, 1.0), 1.0),
+        "lane_base": base,
+        "axis_s": base[lane] + arc,
+        "axis_angle": vertex,
+        "axis_curvature": curvature,
+    }
 
 
 def offset_polyline(points: np.ndarray, offset: float) -> np.ndarray:

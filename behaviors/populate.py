@@ -90,10 +90,6 @@ class PopulateConfig:
             raise BehaveError(f"routes file not found: {self.routes}")
 
 
-CAR_CLASS = "passenger"
-"""The SUMO vehicle class of every car behave adds: only its lanes and connections count."""
-
-
 @dataclass(frozen=True)
 class RouteGraph:
     """Normal edges with at least two car lanes, and which of them a car can drive on to."""
@@ -105,46 +101,17 @@ class RouteGraph:
     start_cdf: np.ndarray  # [E] cumulative lane-metres: a route starts on an edge in proportion to them
 
 
-def car_lanes(edge: Any) -> int:
-    """How many of a sumolib edge's lanes a passenger car may use: one car lane beside a bus lane is one."""
-    return sum(lane.allows(CAR_CLASS) for lane in edge.getLanes())
-
-
-def car_connection(connection: Any) -> bool:
-    """Whether a car may take a sumolib connection: itself and both its lanes allow passenger cars.
-
-    SUMO refuses a route ("No connection") whose consecutive edges are linked only by, say,
-    a bus lane's connections.
-    """
-    return (
-        connection.allows(CAR_CLASS)
-        and connection.getFromLane().allows(CAR_CLASS)
-        and connection.getToLane().allows(CAR_CLASS)
-    )
-
-
-def route_graph(geometry: RoadGeometry, net_file: Path) -> RouteGraph:
-    import sumolib
-
-    net = sumolib.net.readNet(str(net_file))
-    edges = [e for e in net.getEdges() if e.getFunction() == "" and car_lanes(e) >= 2]
-    index = {e.getID(): k for k, e in enumerate(edges)}
-    successors = [
-        sorted(
-            index[to.getID()]
-            for to, connections in e.getOutgoing().items()
-            if to.getID() in index and any(map(car_connection, connections))
-        )
-        for e in edges
-    ]
-    length = np.array([geometry.edges[e.getID()].length for e in edges])
-    lanes = np.array([car_lanes(e) for e in edges])
+def route_graph(geometry: RoadGeometry) -> RouteGraph:
+    """The multi-lane car edges and the car connections between them (SUMO refuses a route whose
+    consecutive edges are linked only by, say, a bus lane's connections: "No connection")."""
+    edges = [e for e, info in geometry.edges.items() if info.normal and info.lanes >= 2]
+    index = {e: k for k, e in enumerate(edges)}
+    ahead = geometry.car_successors
+    successors = [sorted(index[to] for to in ahead.get(e, ()) if to in index) for e in edges]
+    length = np.array([geometry.edges[e].length for e in edges])
+    lanes = np.array([geometry.edges[e].lanes for e in edges])
     return RouteGraph(
-        edges=[e.getID() for e in edges],
-        length=length,
-        lanes=lanes,
-        successors=successors,
-        start_cdf=np.cumsum(length * lanes),
+        edges=edges, length=length, lanes=lanes, successors=successors, start_cdf=np.cumsum(length * lanes)
     )
 
 
@@ -351,7 +318,7 @@ class Population:
     def __init__(self, config: PopulateConfig) -> None:
         self.config = config
         self.geometry = load_geometry(config.net)
-        self.graph = route_graph(self.geometry, config.net)
+        self.graph = route_graph(self.geometry)
         self._check_capacity()
         self.policy, self.with_id, driver = load_policy(config)
         self.rng = np.random.default_rng(config.seed)

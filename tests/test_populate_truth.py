@@ -123,7 +123,7 @@ def test_an_agent_ends_by_the_first_thing_that_happened_to_it():
 
 def test_routes_use_only_car_lanes_and_the_connections_cars_may_take(tmp_path):
     net = bus_town(tmp_path)
-    graph = route_graph(load_geometry(net), net)
+    graph = route_graph(load_geometry(net))
     assert "street" not in graph.edges  # one car lane beside a bus lane and a sidewalk: single-lane
     main, onward = graph.edges.index("main"), graph.edges.index("onward")
     assert graph.lanes[main] == graph.lanes[onward] == 2
