@@ -158,8 +158,9 @@ def _check_xml_whole(path: Path, last_time: float, step: float) -> None:
         with open(path, "rb") as f:
             while block := f.read(1 << 20):
                 parser.Parse(block, False)
-                found = TIMESTEP.findall(tail + block)
-                last = found[-1] if found else last
+                seen = tail + block
+                found = TIMESTEP.match(seen, max(seen.rfind(b"<timestep "), 0))
+                last = found[1] if found else last
                 tail = block[-200:]
             parser.Parse(b"", True)
     except xml.parsers.expat.ExpatError as err:
