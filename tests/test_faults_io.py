@@ -42,9 +42,11 @@ def run_behave(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[
 
 
 def one_error_line(stderr: str) -> str:
+    """The one error line, last on stderr (progress lines may come before it), no traceback."""
     lines = stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("behave: error: "), stderr
-    return lines[0]
+    errors = [line for line in lines if line.startswith("behave: error: ")]
+    assert errors == lines[-1:] and "Traceback" not in stderr, stderr
+    return lines[-1]
 
 
 def hidden(directory: Path) -> list[str]:
