@@ -30,6 +30,10 @@ HANDOVER_SECONDS = 10.0
 HANDBACK_MARGIN = 100.0
 """m: the policy gets the car back only when its lane leads on this much beyond that reach."""
 LANE_END_MARGIN = 20.0
+SIGNAL_DISTANCE = 100.0
+SIGNAL_SECONDS = 5.0
+"""SUMO also takes an agent with a red or yellow signal within max(100 m, 5 s at its speed) on its
+route (the policies never saw a traffic light), and gives it back once none is."""
 JUNCTION_LEADS_ON = 1e4
 """m: inside a junction every lane counts as leading on; SUMO is asked again on the next lane."""
 """Driver models: the paper's TORCS state, reward and heading model, or lanes.py's traffic driver."""
@@ -313,15 +317,20 @@ class Fleet:
     ) -> None:
         """SUMO's strategic layer takes an agent whose lane stops leading on soon while another lane
         of its edge goes on (an exit or a lane drop ahead), or that is on a one-lane road, and
-        hands it back once it is on a lane that leads on. The policies learnt on roads where
-        every lane goes on; SUMO knows where each route needs to be."""
+        hands it back once it is on a lane that leads on; likewise at a red or yellow signal ahead.
+        The policies learnt on roads where every lane goes on and no light turns red; SUMO knows
+        where each route needs to be and stops at the line."""
         r = self.rows
         own_left = r.lane_ends[:, 0] - readings.lane_pos
         reach = np.maximum(HANDOVER_DISTANCE, HANDOVER_SECONDS * r.speed)
         ending = (own_left < reach) & (r.best_end > r.lane_ends[:, 0] + LANE_END_MARGIN)
-        needs_sumo = normal & (ending | (lanes < 2))
+        signal = sim.signal_ahead(r.ids, np.maximum(SIGNAL_DISTANCE, SIGNAL_SECONDS * r.speed))
+        needs_sumo = (normal & (ending | (lanes < 2))) | signal
         free = (
-            normal & (lanes >= 2) & ~((own_left < reach + HANDBACK_MARGIN) & (r.best_end > r.lane_ends[:, 0]))
+            normal
+            & (lanes >= 2)
+            & ~((own_left < reach + HANDBACK_MARGIN) & (r.best_end > r.lane_ends[:, 0]))
+            & ~signal
         )
         give = needs_sumo & ~r.handed
         take = r.handed & free

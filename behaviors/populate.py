@@ -14,6 +14,10 @@ Design choices (see README, "Populate"):
   learnt among a few cars and, in dense traffic, drift into their neighbours and
   run into slower cars. `shield=False` drives with the bare policy.
 * The whole fleet acts through one batched policy call per step.
+* `--sumocfg` runs a user's scenario as its sumocfg sets it (scenario_config.py), and
+  `share` turns that fraction of its passenger cars into agents when they depart: which
+  cars is fixed by the seed and the car's id (a hash), not by what happens in the run, and
+  the others stay SUMO's, driving as in the plain SUMO run until they meet an agent.
 * SUMO writes the FCD itself (so the format is exactly SUMO's), to a temporary
   file that is renamed into place only when the run completed.
 """
@@ -27,7 +31,7 @@ import functools
 import io
 import time
 from collections.abc import Callable
-from dataclasses import astuple, dataclass, field
+from dataclasses import astuple, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -41,8 +45,9 @@ from behaviors.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.errors import BehaveError
 from behaviors.export import FCD_SUFFIXES, fcd_options, require_projection, seal_fcd
 from behaviors.files import atomic_write_text, check_output_path, temp_path
-from behaviors.geometry import RoadGeometry, load_geometry
+from behaviors.geometry import CAR_CLASS, RoadGeometry, load_geometry
 from behaviors.lanes import TRAFFIC_OBS_SIZE
+from behaviors.scenario_config import LATERAL_RESOLUTION, ScenarioConfig, read_sumocfg, share_draw
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID
 from behaviors.sim import SimOptions, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
@@ -72,11 +77,20 @@ class PopulateConfig:
     keep_count: bool = False
     shield: bool = True
     precision: str = "auto"  # the actor's arithmetic: float32, bfloat16, or auto (see use_bfloat16)
+    sumocfg: Path | None = None  # the user's scenario; `net` is then its net
+    share: float = 0.0  # of the scenario's passenger cars, the fraction that become agents
+    overtaker_fraction: float = 0.5  # of those agents, the fraction that are overtakers
+
+    @property
+    def share_kinds(self) -> tuple[bool, bool]:
+        """Whether the share brings (keepers, overtakers)."""
+        return self.share * (1 - self.overtaker_fraction) > 0, self.share * self.overtaker_fraction > 0
 
     def validate(self) -> None:
         if self.overtakers < 0 or self.keepers < 0 or self.background < 0:
             raise BehaveError("agent and background counts must be >= 0")
-        if self.overtakers + self.keepers == 0 and self.background == 0 and self.routes is None:
+        empty = self.overtakers + self.keepers == 0 and self.background == 0
+        if empty and self.routes is None and self.sumocfg is None:
             raise BehaveError("nothing to simulate: zero agents and no background traffic")
         if self.duration <= 0:
             raise BehaveError(f"duration must be positive, got {self.duration}")
@@ -88,6 +102,29 @@ class PopulateConfig:
             raise BehaveError(f"unknown precision '{self.precision}' (choose from {', '.join(PRECISIONS)})")
         if self.routes is not None and not self.routes.is_file():
             raise BehaveError(f"routes file not found: {self.routes}")
+        for name in ("share", "overtaker_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise BehaveError(f"{name.replace('_', ' ')} must be in [0, 1], got {getattr(self, name)}")
+        if self.share > 0 and self.sumocfg is None:
+            raise BehaveError("--share converts a scenario's own cars: it needs --sumocfg")
+
+
+def config_from(sumocfg: Path | None, **given: Any) -> PopulateConfig:
+    """The config for the options a user gave (None = not given). With a sumocfg, its net, its step
+    length and its duration (end - begin) hold where not given, and behave adds no cars of its own
+    unless asked (--keepers, --overtakers, --background)."""
+    values = {name: value for name, value in given.items() if value is not None}
+    if sumocfg is not None:
+        if "net" in values:
+            raise BehaveError(
+                "--net and --sumocfg both name a network: the sumocfg's net is used, drop --net"
+            )
+        scenario = read_sumocfg(sumocfg)
+        values["net"] = scenario.net
+        defaults = {"step_length": scenario.step_length, "duration": scenario.duration}
+        values.update({k: v for k, v in defaults.items() if k not in values and v is not None})
+        values.update({k: 0 for k in ("overtakers", "keepers", "background") if k not in values})
+    return PopulateConfig(sumocfg=sumocfg, **values)
 
 
 @dataclass(frozen=True)
@@ -175,7 +212,9 @@ class PopulateSummary:
     insert_retries: int = 0
     side_cuts: int = 0  # agent-steps whose sideways move the shield cut
     speed_cuts: int = 0  # agent-steps whose speed the shield cut
-    handovers: int = 0  # times SUMO's driver took an agent (exits, lane drops, one-lane roads)
+    handovers: int = 0  # times SUMO's driver took an agent (exits, lane drops, one-lane roads, signals)
+    scenario_cars: int = 0  # the sumocfg's passenger cars that departed
+    scenario_agents: int = 0  # ... of which became agents (--share)
     simulated_s: float = 0.0
     wall_s: float = 0.0
     speed_sum: dict[str, float] = field(default_factory=lambda: {"keeper": 0.0, "overtaker": 0.0})
@@ -199,6 +238,11 @@ class PopulateSummary:
             "shield_side_cuts": self.side_cuts,
             "shield_speed_cuts": self.speed_cuts,
             "handovers_to_sumo": self.handovers,
+            **(
+                {"scenario_passenger_cars": self.scenario_cars, "of_them_agents": self.scenario_agents}
+                if self.scenario_cars
+                else {}
+            ),
             "simulated_s": self.simulated_s,
             "wall_s": self.wall_s,
             "real_time_factor": self.real_time_factor,
@@ -315,9 +359,10 @@ def write_agents_csv(path: Path, rows: list[AgentRow]) -> None:
 class Population:
     """The running SUMO simulation with its learned agents."""
 
-    def __init__(self, config: PopulateConfig) -> None:
+    def __init__(self, config: PopulateConfig, on_status: Callable[[str], None] | None = None) -> None:
         self.config = config
-        self.geometry = load_geometry(config.net)
+        self.scenario: ScenarioConfig | None = read_sumocfg(config.sumocfg) if config.sumocfg else None
+        self.geometry = load_geometry(config.net, cache=True, on_status=on_status)
         self.graph = route_graph(self.geometry)
         self._check_capacity()
         self.policy, self.with_id, driver = load_policy(config)
@@ -344,14 +389,19 @@ class Population:
             )
 
     def start(self, fcd_tmp: Path) -> None:
-        c = self.config
+        c, scenario = self.config, self.scenario
         vtypes = get_scenario("highway").vtypes
         routes = (c.routes,) if c.routes else ()
         extra = ("--begin", "0", *fcd_options(fcd_tmp, geo=c.geo))
-        self.sim = SumoSim(
-            SimOptions(net=c.net, additional=(vtypes,), routes=routes, step_length=c.step_length,
-                       seed=c.seed, extra=extra)
-        )  # fmt: skip
+        options = SimOptions(net=c.net, additional=(vtypes,), routes=routes, step_length=c.step_length,
+                             seed=c.seed, extra=extra)  # fmt: skip
+        if scenario is not None:  # the sumocfg's options, its files named again beside behave's
+            options = replace(
+                options, additional=(*scenario.additional, vtypes), routes=(*scenario.routes, *routes),
+                lateral_resolution=scenario.lateral_resolution or LATERAL_RESOLUTION,
+                extra=("--configuration-file", str(scenario.path), *fcd_options(fcd_tmp, geo=c.geo)),
+            )  # fmt: skip
+        self.sim = SumoSim(options)
         self.routes = RoutePool(self.graph, c.duration * 50.0, self.sim.add_route)
         self.insert("overtaker", c.overtakers)
         self.insert("keeper", c.keepers)
@@ -434,12 +484,34 @@ class Population:
         # background cars leave at the end of their route, or wrecked
         left_background = {v for v in arrived if v in self.background_ids}.union(wrecked_background)
         self.background_ids -= left_background
+        if self.scenario is not None:  # before _admit: behave's own cars are still pending
+            self._convert([v for v in sim.departed() if v not in self.pending], now)
         self._admit(self.vehicles.row, now)
         if c.keep_count:
             for kind in ("keeper", "overtaker"):
                 self.insert(kind, sum(v.startswith(kind) for v in left))
             self.insert("background", len(left_background))
         self.summary.simulated_s += c.step_length
+
+    def _convert(self, departed: list[str], time: float) -> None:
+        """The share of the scenario's passenger cars that departed this step become agents: behave's
+        vehicle type, SUMO's checks off, into the fleet. The rest stay SUMO's, untouched."""
+        sim, c = self.sim, self.config
+        assert sim is not None
+        cars = [v for v in departed if sim.vehicle_class(v) == CAR_CLASS]
+        draws = {v: share_draw(c.seed, v) for v in cars}
+        agents = [v for v in cars if draws[v] < c.share]
+        self.summary.scenario_cars += len(cars)
+        self.summary.scenario_agents += len(agents)
+        if not agents:
+            return
+        kinds = ["overtaker" if draws[v] < c.share * c.overtaker_fraction else "keeper" for v in agents]
+        for vid, kind in zip(agents, kinds, strict=True):
+            sim.set_type(vid, OVERTAKER_TYPE if kind == "overtaker" else KEEPER_TYPE)
+        sim.take_control(agents)
+        behaviour = np.array([1.0 if kind == "overtaker" else 0.0 for kind in kinds])
+        self.fleet.add(agents, sim.read_speeds(agents), behaviour, desired_fractions(behaviour, self.rng))
+        self.log.join(agents, kinds, time)
 
     def _observe_agents(self, present: np.ndarray) -> None:
         """SUMO's speed of each agent it still has, not the one commanded: SUMO may hold a car back
@@ -532,14 +604,21 @@ def load_policy(config: PopulateConfig) -> tuple[Callable[[np.ndarray], np.ndarr
             f"{config.policy} expects {obs_dim} observations; behave policies take "
             f"65, 66 or {TRAFFIC_OBS_SIZE}"
         )
-    if obs_dim == OBS_SIZE and config.overtakers and config.keepers:
+    keepers, overtakers = config.share_kinds
+    keepers, overtakers = keepers or config.keepers > 0, overtakers or config.overtakers > 0
+    if obs_dim != TRAFFIC_OBS_SIZE and config.share > 0:
+        raise BehaveError(
+            f"{config.policy} drives the paper's TORCS model, which cannot leave multi-lane roads: "
+            f"--share needs a traffic-driver policy ({TRAFFIC_OBS_SIZE} inputs)"
+        )
+    if obs_dim == OBS_SIZE and overtakers and keepers:
         raise BehaveError(
             f"{config.policy} is a {behaviour} policy: it cannot drive both keepers and overtakers "
             "(use a multi-behaviour policy)"
         )
-    if obs_dim == OBS_SIZE and behaviour == "lanekeeping" and config.overtakers:
+    if obs_dim == OBS_SIZE and behaviour == "lanekeeping" and overtakers:
         raise BehaveError(f"{config.policy} is a lanekeeping policy: use --keepers, not --overtakers")
-    if obs_dim == OBS_SIZE and behaviour == "overtaking" and config.keepers:
+    if obs_dim == OBS_SIZE and behaviour == "overtaking" and keepers:
         raise BehaveError(f"{config.policy} is an overtaking policy: use --overtakers, not --keepers")
     actor = load_actor(config.policy)
     half = None if config.precision == "float32" else copy.deepcopy(actor).to(torch.bfloat16)
@@ -567,12 +646,17 @@ def finish_fcd(partial: Path, final: Path, config: PopulateConfig, last_time: fl
     header = (
         f"<!-- behave populate: net={config.net.name} overtakers={config.overtakers} "
         f"keepers={config.keepers} background={config.background} duration={config.duration} "
-        f"step-length={config.step_length} seed={config.seed}{' geo=true' if config.geo else ''} -->\n"
+        f"step-length={config.step_length} seed={config.seed}{' geo=true' if config.geo else ''}"
+        f"{f' sumocfg={config.sumocfg.name} share={config.share}' if config.sumocfg else ''} -->\n"
     )
     seal_fcd(partial, final, header=header, geo=config.geo, last_time=last_time, step=config.step_length)
 
 
-def populate(config: PopulateConfig, on_step: Callable[[float], None] | None = None) -> PopulateSummary:
+def populate(
+    config: PopulateConfig,
+    on_step: Callable[[float], None] | None = None,
+    on_status: Callable[[str], None] | None = None,
+) -> PopulateSummary:
     """Run the whole simulation; the FCD file and the per-agent table beside it appear only if the
     run completed."""
     config.validate()
@@ -581,10 +665,12 @@ def populate(config: PopulateConfig, on_step: Callable[[float], None] | None = N
     if config.geo:
         require_projection(config.net, "--geo writes lon/lat: the net needs a geo projection")
     torch.set_num_threads(POLICY_THREADS)
-    population = Population(config)
+    population = Population(config, on_status)
     partial = partial_path(config.fcd)
     start = time.perf_counter()
     try:
+        if on_status:
+            on_status("starting SUMO")
         population.start(partial)
         steps = round(config.duration / config.step_length)
         for _ in range(steps):

@@ -307,6 +307,23 @@ class SumoSim:
     def set_max_speed(self, vid: str, speed: float) -> None:
         self._sumo.vehicle.setMaxSpeed(vid, speed)
 
+    def departed(self) -> list[str]:
+        """Vehicles that entered the network this step (the scenario's own and behave's)."""
+        return list(self._sumo.simulation.getDepartedIDList())
+
+    def vehicle_class(self, vid: str) -> str:
+        return self._sumo.vehicle.getVehicleClass(vid)
+
+    def set_type(self, vid: str, vtype: str) -> None:
+        self._sumo.vehicle.setType(vid, vtype)
+
+    def signal_ahead(self, ids: Sequence[str], reach: np.ndarray) -> np.ndarray:
+        """Whether a red or yellow (or red-yellow) signal lies on each vehicle's route within `reach` m."""
+        next_tls = self._sumo.vehicle.getNextTLS
+        stop = {"r", "R", "y", "Y", "u"}
+        pairs = zip(ids, reach.tolist(), strict=True)
+        return np.array([any(d <= r and s in stop for _, _, d, s in next_tls(vid)) for vid, r in pairs], bool)
+
 
 FAST_CALLS = ("getPosition", "getDistance", "getLaneID", "getLanePosition", "getLateralLanePosition",
               "getSpeed", "setSpeed", "changeSublane")  # fmt: skip

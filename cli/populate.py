@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Annotated
 
 import typer
@@ -10,34 +11,80 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+import behaviors
 from behaviors.files import check_output_path
-from behaviors.populate import DEFAULT_POLICY, PopulateConfig, agents_csv_path, populate
 from cli.checks import NON_NEGATIVE, POSITIVE, SEED
+from sumo_scenarios import get_scenario
 
-DEFAULTS = PopulateConfig()
+DEFAULTS = SimpleNamespace(
+    net=get_scenario("highway").net, overtakers=4, keepers=4, background=20, duration=180.0,
+    step_length=0.2, seed=0, shield=True, precision="auto",
+)  # fmt: skip
+"""PopulateConfig's defaults, spelled out so that `--help` needs no torch (a test keeps them equal)."""
+DEFAULT_POLICY = Path(behaviors.__file__).parent / "pretrained" / "multi.pt"
 
 
 def populate_command(
     net: Annotated[
-        Path, typer.Option(help="SUMO .net.xml (default: the bundled 3 km highway)")
-    ] = DEFAULTS.net,
+        Path | None, typer.Option(help="SUMO .net.xml (default: the bundled 3 km highway)")
+    ] = None,
+    sumocfg: Annotated[
+        Path | None,
+        typer.Option(
+            help="run your own SUMO scenario as its .sumocfg sets it (net, routes, additionals, options); "
+            "behave adds no cars of its own unless asked"
+        ),
+    ] = None,
+    share: Annotated[
+        float,
+        typer.Option(
+            help="with --sumocfg: this fraction of the scenario's passenger cars become agents (0-1)"
+        ),
+    ] = 0.0,
+    overtaker_fraction: Annotated[
+        float,
+        typer.Option(
+            help="of the agents from --share, the fraction that are overtakers (the rest keep lanes)"
+        ),
+    ] = 0.5,
     overtakers: Annotated[
-        int, typer.Option(help="learned overtakers", callback=NON_NEGATIVE)
-    ] = DEFAULTS.overtakers,
+        int | None,
+        typer.Option(
+            help=f"learned overtakers [default: {DEFAULTS.overtakers}, 0 with --sumocfg]",
+            callback=NON_NEGATIVE,
+        ),
+    ] = None,
     keepers: Annotated[
-        int, typer.Option(help="learned lane keepers", callback=NON_NEGATIVE)
-    ] = DEFAULTS.keepers,
+        int | None,
+        typer.Option(
+            help=f"learned lane keepers [default: {DEFAULTS.keepers}, 0 with --sumocfg]",
+            callback=NON_NEGATIVE,
+        ),
+    ] = None,
     policy: Annotated[
         Path, typer.Option(help="checkpoint (default: bundled multi-behaviour policy)")
     ] = DEFAULT_POLICY,
     background: Annotated[
-        int, typer.Option(help="SUMO's own cars around the agents", callback=NON_NEGATIVE)
-    ] = DEFAULTS.background,
+        int | None,
+        typer.Option(
+            help=f"SUMO's own cars around the agents [default: {DEFAULTS.background}, 0 with --sumocfg]",
+            callback=NON_NEGATIVE,
+        ),
+    ] = None,
     routes: Annotated[Path | None, typer.Option(help="a SUMO routes file of your own traffic")] = None,
-    duration: Annotated[float, typer.Option(help="simulated seconds", callback=POSITIVE)] = DEFAULTS.duration,
+    duration: Annotated[
+        float | None,
+        typer.Option(
+            help=f"simulated seconds [default: {DEFAULTS.duration:g}, or the sumocfg's end - begin]",
+            callback=POSITIVE,
+        ),
+    ] = None,
     step_length: Annotated[
-        float, typer.Option(help="seconds per step", callback=POSITIVE)
-    ] = DEFAULTS.step_length,
+        float | None,
+        typer.Option(
+            help=f"seconds per step [default: {DEFAULTS.step_length:g}, or the sumocfg's]", callback=POSITIVE
+        ),
+    ] = None,
     seed: Annotated[
         int, typer.Option(help="same seed, same traces (byte for byte)", callback=SEED)
     ] = DEFAULTS.seed,
@@ -61,15 +108,18 @@ def populate_command(
     plot: Annotated[Path | None, typer.Option(help="also draw the traces into this PNG")] = None,
 ) -> None:
     """Drive learned keepers and overtakers (one batched policy call per step) and write SUMO FCD."""
-    config = PopulateConfig(
-        net=net, overtakers=overtakers, keepers=keepers, policy=policy, background=background, routes=routes,
-        duration=duration, step_length=step_length, seed=seed, fcd=fcd, geo=geo, keep_count=keep_count,
-        shield=shield, precision=precision,
+    from behaviors.populate import agents_csv_path, config_from, populate  # torch: only when run
+
+    config = config_from(
+        sumocfg, net=net, overtakers=overtakers, keepers=keepers, policy=policy, background=background,
+        routes=routes, duration=duration, step_length=step_length, seed=seed, fcd=fcd, geo=geo,
+        keep_count=keep_count, shield=shield, precision=precision, share=share,
+        overtaker_fraction=overtaker_fraction,
     )  # fmt: skip
     columns = (TextColumn("simulating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
                TimeElapsedColumn())  # fmt: skip
     progress = Progress(*columns, transient=True)
-    task = progress.add_task("populate", total=duration)
+    task = progress.add_task("populate", total=config.duration)
 
     def advance(simulated: float) -> None:
         if not progress.live.is_started:  # started only once the set-up passed its checks
@@ -79,11 +129,13 @@ def populate_command(
     if plot is not None:  # found unwritable now, not after the whole run
         check_output_path(plot)
     try:
-        summary = populate(config, on_step=advance)
+        summary = populate(
+            config, on_step=advance, on_status=lambda text: typer.echo(f"set-up: {text}", err=True)
+        )
     finally:
         if progress.live.is_started:
             progress.stop()
-    table = Table(title=f"behave populate: {net.name}, seed {seed}")
+    table = Table(title=f"behave populate: {config.net.name}, seed {seed}")
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key, value in summary.as_dict().items():
@@ -101,6 +153,8 @@ def populate_command(
         from behaviors.plot import plot_fcd
 
         plot_fcd(
-            read_fcd(fcd, geo=geo), plot, title=f"{net.name}: {keepers} keepers, {overtakers} overtakers"
+            read_fcd(fcd, geo=geo),
+            plot,
+            title=f"{config.net.name}: {config.keepers} keepers, {config.overtakers} overtakers",
         )
         typer.echo(f"plot written to {plot}")
