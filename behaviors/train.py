@@ -34,13 +34,19 @@ import torch
 from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.ddpg.learner import DDPGConfig, DDPGLearner, IndependentLearners
 from behaviors.ddpg.replay_files import ReplayFiles
-from behaviors.env import BEHAVIOURS, BehaveEnv, EnvConfig
+from behaviors.env import BEHAVIOURS, EnvConfig, create_env
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path, atomic_write_bytes, atomic_write_text, ensure_writable_dir
+from behaviors.lanes import TRAFFIC_LAYOUT, TRAFFIC_OBS_SIZE
 from behaviors.metrics import EpisodeStats, summary
 from behaviors.sensors import OBSERVATION_LAYOUT
 
 ALGORITHMS = ("ps-ddpg", "ddpg", "multi-ddpg")
+REWARD_SCALES = {"paper": 0.01, "traffic": 0.1}
+TRAFFIC_EXPLORATION = {"ou_theta": (0.15, 1.0, 1.0), "ou_sigma": (0.2, 0.1, 0.05)}
+"""The traffic driver's steer sets a lateral speed: a lane change needs steer held for about 3 s,
+so its steer noise is correlated over ~7 steps (theta 0.15, stationary std 0.38) instead of ~2."""
+"""Critic reward scale per driver: the paper's rewards are ~100 per step (km/h), the traffic ones ~1."""
 STATE_VERSION = 2
 _LEARNER = DDPGConfig()
 
@@ -63,6 +69,7 @@ class TrainConfig:
     seed: int = 0
     updates_per_step: int | None = None  # None: one per live agent (the paper)
     lane_weight: float = 0.0  # lane-discipline reward term; 0 = the paper's reward
+    driver: str = "paper"  # "traffic": lane observation, traffic reward, among SUMO's cars (scenario roads)
     # learner settings: the defaults are DDPGConfig's, named alike (one source of truth)
     hidden: tuple[int, ...] = _LEARNER.hidden
     batch_size: int = _LEARNER.batch_size
@@ -74,7 +81,7 @@ class TrainConfig:
     warmup: int = _LEARNER.warmup
     explore_decay_steps: int = _LEARNER.explore_decay_steps
     batched_updates: bool = _LEARNER.batched
-    reward_scale: float = 0.01  # rewards are ~100/step in km/h: scaled for the critic, logged raw
+    reward_scale: float | None = None  # for the critic (logged raw); None: the driver's REWARD_SCALES
     checkpoint_every: int = 10
     init: str | None = None  # checkpoint to start from (curriculum: overtaking from lane keeping)
     max_minutes: float | None = None  # wall-clock budget: stop after the episode that exceeds it
@@ -106,14 +113,20 @@ class TrainConfig:
             step_length=self.step_length,
             seed=self.seed,
             lane_weight=self.lane_weight,
+            driver=self.driver,
         )
+
+    @property
+    def critic_reward_scale(self) -> float:
+        return REWARD_SCALES[self.driver] if self.reward_scale is None else self.reward_scale
 
     def ddpg_config(self) -> DDPGConfig:
         shared = {
             f.name: getattr(self, f.name) for f in dataclasses.fields(DDPGConfig) if hasattr(self, f.name)
         }
         shared["hidden"] = tuple(self.hidden)  # JSON round trips turn it into a list
-        return dataclasses.replace(_LEARNER, **shared, batched=self.batched_updates)
+        exploration = TRAFFIC_EXPLORATION if self.driver == "traffic" else {}
+        return dataclasses.replace(_LEARNER, **shared, **exploration, batched=self.batched_updates)
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
@@ -150,7 +163,7 @@ class Trainer:
         self.out = out
         torch.set_num_threads(1)  # SUMO runs beside the learner: 2 threads measured 6x slower
         torch.manual_seed(config.seed)
-        self.env = BehaveEnv(config.env_config())
+        self.env = create_env(config.env_config())
         self.obs_dim = self.env.config.obs_size
         n = self.env.config.n_agents
         if config.algo == "multi-ddpg":
@@ -311,7 +324,7 @@ class Trainer:
             else:
                 actions = learner.act(obs, explore=True)
             batch = env.step_arrays(actions)
-            reward = (batch.reward * c.reward_scale).astype(np.float32)
+            reward = (batch.reward * c.critic_reward_scale).astype(np.float32)
             terminated = batch.terminated.astype(np.float32)
             if isinstance(learner, IndependentLearners):
                 learner.observe(obs, actions, reward, batch.next_obs, terminated, slots)
@@ -361,6 +374,8 @@ def widen_inputs(state: dict, obs_dim: int, obs_first: bool) -> dict:
 
 
 def observation_layout_name(obs_dim: int) -> str:
+    if obs_dim == TRAFFIC_OBS_SIZE:
+        return "traffic:" + "+".join(name for name, _ in TRAFFIC_LAYOUT)
     names = "+".join(name for name, _ in OBSERVATION_LAYOUT)
     return f"torcs65:{names}" + ("+behaviour_id" if obs_dim == 66 else "")
 
