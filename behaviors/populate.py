@@ -362,10 +362,10 @@ class Population:
     def __init__(self, config: PopulateConfig, on_status: Callable[[str], None] | None = None) -> None:
         self.config = config
         self.scenario: ScenarioConfig | None = read_sumocfg(config.sumocfg) if config.sumocfg else None
+        self.policy, self.with_id, driver = load_policy(config)  # a wrong policy is found before set-up
         self.geometry = load_geometry(config.net, cache=True, on_status=on_status)
         self.graph = route_graph(self.geometry)
         self._check_capacity()
-        self.policy, self.with_id, driver = load_policy(config)
         self.rng = np.random.default_rng(config.seed)
         self.timer = PhaseTimer()
         self.fleet = Fleet(self.geometry, CarModel(), config.step_length, self.timer, config.shield, driver)
