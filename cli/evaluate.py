@@ -10,7 +10,6 @@ from rich.console import Console
 from rich.table import Table
 
 from behaviors.errors import BehaveError
-from behaviors.evaluate import PAPER_METRICS, plan_evaluation, run_plan, write_report
 from behaviors.files import check_output_path
 from cli.checks import NON_NEGATIVE, POSITIVE, SEED, check_number
 
@@ -41,6 +40,8 @@ def evaluate_command(
     ),
 ) -> None:
     """Average the paper's metrics over episodes for every policy and setting."""
+    from behaviors.evaluate import PAPER_METRICS, plan_evaluation, run_plan, write_report  # torch, pandas
+
     plan = plan_evaluation(
         list(checkpoints or []), agents=parse_ints(agents), episodes=episodes, behaviour=behaviour,
         overtakers=overtakers, keepers=keepers, placements=parse_list(placement), scenario=scenario,

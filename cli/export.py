@@ -8,7 +8,6 @@ from typing import Annotated
 import typer
 
 from behaviors.export import EXPORT_FORMATS, export_fcd, read_fcd
-from behaviors.plot import plot_fcd
 
 
 def export_command(
@@ -38,5 +37,7 @@ def plot_command(
     net: Annotated[Path | None, typer.Option(help="the network, for true lane widths")] = None,
 ) -> None:
     """Time-space diagram and lateral position over time, coloured by behaviour."""
+    from behaviors.plot import plot_fcd  # matplotlib: only when plotting
+
     plot_fcd(read_fcd(fcd, geo=geo), out, title=title or fcd.name, net=net)
     typer.echo(f"wrote {out}")

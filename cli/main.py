@@ -16,12 +16,15 @@ from typer import _click as click
 
 from behaviors.errors import BehaveError
 from cli import evaluate, export, populate, report, scenario, train
+from cli.group import QuickHelpGroup
 
 app = typer.Typer(
     help="behave: learned, behaviour-based traffic in SUMO (PS-DDPG lane keepers and overtakers).",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     add_completion=False,
+    cls=QuickHelpGroup,
+    rich_markup_mode=None,  # plain help: rich's help renderer alone takes ~0.3 s to import
 )
 app.add_typer(scenario.app, name="scenario")
 app.command("train")(train.train)

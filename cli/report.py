@@ -9,19 +9,10 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from behaviors.export import read_fcd
-from behaviors.realism import (
-    GROUP_BY,
-    SKIP_S,
-    Lanes,
-    agents_path,
-    check_options,
-    measure,
-    read_agents,
-    read_lanes,
-    rows,
-)
-from behaviors.realism import write_report as write_realism
+GROUP_BY = ("type", "id-prefix")
+SKIP_S = 10.0
+"""realism's groupings and skipped seconds, spelled out so that `--help` needs no pandas (a test keeps
+them equal)."""
 
 
 def report_command(
@@ -38,6 +29,10 @@ def report_command(
     ] = "type",
 ) -> None:
     """Lane use, lane changes, lateral acceleration, headways, passes, speeds and losses per group."""
+    from behaviors.export import read_fcd
+    from behaviors.realism import Lanes, agents_path, check_options, measure, read_agents, read_lanes, rows
+    from behaviors.realism import write_report as write_realism
+
     check_options(skip_s, group_by)
     lanes = read_lanes(net) if net is not None else Lanes()
     agents = read_agents(agents_path(fcd))

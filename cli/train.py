@@ -5,15 +5,19 @@ from __future__ import annotations
 import signal
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Annotated
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from behaviors.train import TrainConfig, prepare_run
 from cli.checks import NON_NEGATIVE, POSITIVE, SEED
 
-DEFAULTS = TrainConfig()
+DEFAULTS = SimpleNamespace(
+    algo="ps-ddpg", agents=6, episodes=100, max_steps=1000, step_length=0.2, seed=0, scenario="ring",
+    batch_size=64, reward_scale=None, driver="paper", explore_decay_steps=100_000, lane_weight=0.0,
+)  # fmt: skip
+"""TrainConfig's defaults, spelled out so that `--help` needs no torch (a test keeps them equal)."""
 
 
 def train(
@@ -80,6 +84,8 @@ def train(
     ] = None,
 ) -> None:
     """Train a behaviour; Ctrl-C or SIGTERM stops it (exit 130 or 143), resumable with --resume."""
+    from behaviors.train import TrainConfig, prepare_run  # torch: only when training
+
     config = TrainConfig(
         behaviour=behaviour, algo=algo, agents=agents, overtakers=overtakers, keepers=keepers,
         placement=placement, opponents=opponents, max_steps=max_steps,
