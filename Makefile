@@ -15,6 +15,7 @@ $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/pip install $(PIP_FLAGS) --upgrade pip
 	$(BIN)/pip install $(PIP_FLAGS) torch==2.13.0
+	$(BIN)/pip uninstall -y -q behave 2>/dev/null || true  # the distribution's former name
 	$(BIN)/pip install $(PIP_FLAGS) -e '.[dev]'
 	touch $(STAMP)
 

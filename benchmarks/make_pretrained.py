@@ -38,9 +38,9 @@ at 2.0, 0.6% (benchmarks/bench_populate.py, docs/benchmarks.md)."""
 def train_command(
     name: str, args: list[str], runs: Path, seed: int, minutes: float, lane_weight: float = LANE_WEIGHT
 ) -> list[str]:
-    return [sys.executable, "-m", "cli", "train", *args, "--seed", str(seed), "--out", str(runs / name),
-            "--max-minutes", str(minutes), "--episodes", "2000", "--checkpoint-every", "10",
-            "--lane-weight", str(lane_weight)]  # fmt: skip
+    return [sys.executable, "-m", "behaviors.cli", "train", *args, "--seed", str(seed),
+            "--out", str(runs / name), "--max-minutes", str(minutes), "--episodes", "2000",
+            "--checkpoint-every", "10", "--lane-weight", str(lane_weight)]  # fmt: skip
 
 
 def run_parallel(commands: list[list[str]]) -> list[float]:

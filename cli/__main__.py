@@ -1,5 +1,5 @@
-"""`python -m cli` runs the behave command line (used by scripts that need this interpreter)."""
+"""`python -m behaviors.cli` runs the behave command line (used by scripts that need this interpreter)."""
 
-from cli.main import main
+from behaviors.cli.main import main
 
 main()

@@ -9,9 +9,9 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED, check_number
 from behaviors.errors import BehaveError
 from behaviors.files import check_output_path
-from cli.checks import NON_NEGATIVE, POSITIVE, SEED, check_number
 
 
 def evaluate_command(

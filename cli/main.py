@@ -14,9 +14,9 @@ from typing import NoReturn
 import typer
 from typer import _click as click
 
+from behaviors.cli import evaluate, export, populate, report, scenario, train
+from behaviors.cli.group import QuickHelpGroup
 from behaviors.errors import BehaveError
-from cli import evaluate, export, populate, report, scenario, train
-from cli.group import QuickHelpGroup
 
 app = typer.Typer(
     help="behave: learned, behaviour-based traffic in SUMO (PS-DDPG lane keepers and overtakers).",

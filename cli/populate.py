@@ -12,8 +12,8 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 import behaviors
+from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED
 from behaviors.files import check_output_path
-from cli.checks import NON_NEGATIVE, POSITIVE, SEED
 from sumo_scenarios import get_scenario
 
 DEFAULTS = SimpleNamespace(

@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from cli.group import QuickHelpGroup
+from behaviors.cli.group import QuickHelpGroup
 from sumo_scenarios import SCENARIO_NAMES, build_scenarios, get_scenario, scenario_info
 
 app = typer.Typer(help="Road networks (SUMO scenarios): list them or rebuild them.", cls=QuickHelpGroup)

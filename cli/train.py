@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from cli.checks import NON_NEGATIVE, POSITIVE, SEED
+from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED
 
 DEFAULTS = SimpleNamespace(
     algo="ps-ddpg", agents=6, episodes=100, max_steps=1000, step_length=0.2, seed=0, scenario="ring",

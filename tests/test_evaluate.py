@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
+from behaviors.cli.main import app
 from behaviors.ddpg.checkpoint import save_checkpoint
 from behaviors.ddpg.networks import Actor
 from behaviors.env import StepBatch
@@ -16,7 +17,6 @@ from behaviors.errors import BehaveError
 from behaviors.evaluate import PAPER_METRICS, plan_evaluation
 from behaviors.metrics import EpisodeStats, summary
 from behaviors.rewards import RewardTerms
-from cli.main import app
 
 
 def step(slots, collided, speed=20.0, reward=10.0, off_track=None, lane_deviation=0.0) -> StepBatch:

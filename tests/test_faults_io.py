@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from behaviors.cli.main import main
 from behaviors.ddpg.checkpoint import save_checkpoint
 from behaviors.ddpg.networks import Actor
 from behaviors.errors import BehaveError
@@ -24,12 +25,11 @@ from behaviors.export import export_fcd, fcd_is_geo, read_fcd
 from behaviors.files import atomic_write_text
 from behaviors.plot import plot_fcd
 from behaviors.populate import PopulateConfig, populate
-from cli.main import main
 from sumo_scenarios import get_scenario
 
 HIGHWAY = get_scenario("highway").net
 TINY = get_scenario("tiny").net
-BEHAVE = [sys.executable, "-m", "cli"]
+BEHAVE = [sys.executable, "-m", "behaviors.cli"]
 META = {
     "algorithm": "ps-ddpg", "behaviour": "multi", "behaviours": ["multi"], "obs_dim": 66,
     "observation_layout": "test", "normalisation": "test", "hidden": [256, 256], "training_steps": 0,

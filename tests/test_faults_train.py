@@ -152,7 +152,7 @@ def test_a_killed_run_resumes_from_its_last_finished_episode(tmp_path, uninterru
 
 
 def behave(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    command = [sys.executable, "-m", "cli", *args]
+    command = [sys.executable, "-m", "behaviors.cli", *args]
     return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
 
 
@@ -163,7 +163,7 @@ TINY_CLI = ["train", "lanekeeping", "--scenario", "tiny", "--agents", "2", "--hi
 @pytest.mark.parametrize(("stop", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_interrupted_training_exits_non_zero_with_one_line_on_how_to_resume(tmp_path, stop, code):
     out = tmp_path / "run"
-    args = [sys.executable, "-m", "cli", *TINY_CLI, "--max-steps", "60", "--out", str(out)]
+    args = [sys.executable, "-m", "behaviors.cli", *TINY_CLI, "--max-steps", "60", "--out", str(out)]
     child = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_for(lambda: (out / "metrics.csv").exists())

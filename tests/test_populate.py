@@ -180,7 +180,7 @@ def test_bad_input_gives_a_clear_error_and_no_output(tmp_path, multi_policy):
 
 def test_cli_errors_are_one_line_on_stderr_without_traceback(tmp_path):
     result = subprocess.run(
-        [sys.executable, "-m", "cli", "populate", "--net", str(tmp_path / "missing.net.xml"),
+        [sys.executable, "-m", "behaviors.cli", "populate", "--net", str(tmp_path / "missing.net.xml"),
          "--fcd", str(tmp_path / "f.xml")],
         capture_output=True, text=True,
     )  # fmt: skip

@@ -158,8 +158,8 @@ def test_repeated_insertions_reuse_sumos_routes(tmp_path):
 def test_cli_prints_how_the_agents_ended(tmp_path):
     fcd = tmp_path / "fcd.xml"
     result = subprocess.run(
-        [sys.executable, "-m", "cli", "populate", "--overtakers", "1", "--keepers", "1", "--background", "0",
-         "--duration", "5", "--fcd", str(fcd)],
+        [sys.executable, "-m", "behaviors.cli", "populate", "--overtakers", "1", "--keepers", "1",
+         "--background", "0", "--duration", "5", "--fcd", str(fcd)],
         capture_output=True, text=True, check=True,
     )  # fmt: skip
     for line in ("agents arrived", "agents off track", "agents still driving", "agents standing 30s",

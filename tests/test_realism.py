@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from behaviors.cli.main import main
 from behaviors.errors import BehaveError
 from behaviors.realism import (
     Lanes,
@@ -24,7 +25,6 @@ from behaviors.realism import (
     read_lanes,
 )
 from behaviors.sumo_home import sumo_binary
-from cli.main import main
 from sumo_scenarios import get_scenario
 
 WIDTH = 3.2  # the width realism assumes without a net
@@ -188,7 +188,8 @@ def test_losses_per_agent_hour() -> None:
 
 
 def behave(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "cli", *args], capture_output=True, text=True, check=False)
+    command = [sys.executable, "-m", "behaviors.cli", *args]
+    return subprocess.run(command, capture_output=True, text=True, check=False)
 
 
 def report(

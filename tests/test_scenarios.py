@@ -205,7 +205,7 @@ def test_unknown_scenario_names_the_choices() -> None:
 def test_cli_lists_and_builds(tmp_path) -> None:
     from typer.testing import CliRunner
 
-    from cli.scenario import app
+    from behaviors.cli.scenario import app
 
     listed = CliRunner().invoke(app, ["list"])
     assert listed.exit_code == 0, listed.output
