@@ -20,6 +20,7 @@ from behaviors.control import DRIVERS, Fleet
 from behaviors.errors import BehaveError
 from behaviors.geometry import RoadGeometry, load_geometry
 from behaviors.lanes import TRAFFIC_OBS_SIZE
+from behaviors.render import RENDER_MODES, check_render_mode, top_down
 from behaviors.rewards import (
     NO_PROGRESS_SECONDS,
     RewardTerms,
@@ -179,10 +180,14 @@ class StepBatch:
 class BehaveEnv(ParallelEnv):
     """N learned cars (and optional passive SUMO cars) on a bundled scenario."""
 
-    metadata: ClassVar[dict] = {"name": "behave_v0", "render_modes": [], "is_parallelizable": True}
+    metadata: ClassVar[dict] = {
+        "name": "behave_v0", "render_modes": list(RENDER_MODES), "render_fps": 5, "is_parallelizable": True
+    }  # fmt: skip
+    render_mode: str | None = None
 
-    def __init__(self, config: EnvConfig) -> None:
+    def __init__(self, config: EnvConfig, render_mode: str | None = None) -> None:
         config.validate()
+        self.render_mode = check_render_mode(render_mode)
         self.config = config
         self.scenario: Scenario = (
             config.scenario if isinstance(config.scenario, Scenario) else get_scenario(config.scenario)
@@ -214,6 +219,8 @@ class BehaveEnv(ParallelEnv):
         return dict(zip(names, obs, strict=True)), {name: {} for name in names}
 
     def step(self, actions: dict):
+        if not self.agents:  # wrappers (SuperSuit, RLlib) step once more after the last agent left
+            return {}, {}, {}, {}, {}
         acting = list(self.agents)
         batch = self.step_arrays(np.array([actions[name] for name in acting], np.float32).reshape(-1, 3))
         obs, rew, term, trunc, info = {}, {}, {}, {}, {}
@@ -231,8 +238,13 @@ class BehaveEnv(ParallelEnv):
             self.sim.close()
             self.sim = None
 
-    def render(self) -> None:
-        return None
+    def render(self) -> np.ndarray | None:
+        """With render_mode "rgb_array": a top-down picture of the road, agents red, other cars blue."""
+        if self.render_mode is None or self.sim is None:
+            return None
+        vehicles = self.sim.read_vehicles(with_distance=False)
+        is_agent = np.isin(np.array(vehicles.ids, dtype=object), self.agents)
+        return top_down(self.geometry.seg_a, self.geometry.seg_b, vehicles.position, is_agent)
 
     def state(self) -> np.ndarray:
         return self.live_obs.copy()
@@ -544,6 +556,7 @@ def make_env(
     lane_weight: float = 0.0,
     shield: bool = False,
     driver: str = "paper",
+    render_mode: str | None = None,
 ) -> BehaveEnv:
     """A native PettingZoo ParallelEnv with a batched array interface for trainers.
 
@@ -565,14 +578,17 @@ def make_env(
             lane_weight=lane_weight,
             shield=shield,
             driver=driver,
-        )
+        ),
+        render_mode,
     )
 
 
-def create_env(config: EnvConfig) -> BehaveEnv:
+def create_env(config: EnvConfig, render_mode: str | None = None) -> BehaveEnv:
     """The environment a config describes: the paper's scenarios, or agents among traffic."""
     if config.driver == "traffic":
         from behaviors.traffic_env import TrafficEnv
 
-        return TrafficEnv(config)
-    return BehaveEnv(config)
+        env = TrafficEnv(config)
+        env.render_mode = check_render_mode(render_mode)
+        return env
+    return BehaveEnv(config, render_mode)

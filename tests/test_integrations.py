@@ -9,7 +9,12 @@ import sys
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from behaviors.env import BehaveEnv, make_env
+from behaviors.errors import BehaveError
+from behaviors.render import AGENT, ROAD
 
 ROOT = Path(__file__).resolve().parents[1]
 HEAVY = ("torch", "pandas", "matplotlib", "libsumo", "sumolib", "traci")
@@ -65,3 +70,67 @@ def test_wheel_installs_the_cli_under_behaviors(tmp_path: Path) -> None:
     assert top_level == {"behaviors", "sumo_scenarios"}
     assert "behaviors/cli/main.py" in names
     assert "behave = behaviors.cli.main:main" in scripts
+
+
+def log_steps(monkeypatch: pytest.MonkeyPatch) -> list[tuple[int, int]]:
+    """(agents before, agents after) of every BehaveEnv step, also in the copies wrappers make."""
+    rows: list[tuple[int, int]] = []
+    step = BehaveEnv.step
+
+    def logged(env: BehaveEnv, actions: dict):
+        before = len(env.agents)
+        result = step(env, actions)
+        rows.append((before, len(env.agents)))
+        return result
+
+    monkeypatch.setattr(BehaveEnv, "step", logged)
+    return rows
+
+
+def test_stepping_after_the_last_agent_left_returns_empty_dicts() -> None:
+    """SuperSuit and RLlib step once more after every agent is done: five empty dicts, no error."""
+    env = make_env("tiny", agents=1, max_steps=3, seed=0)
+    try:
+        env.reset(seed=0)
+        while env.agents:
+            env.step({a: np.zeros(3, np.float32) for a in env.agents})
+        assert env.step({}) == ({}, {}, {}, {}, {})
+    finally:
+        env.close()
+
+
+def test_rgb_array_draws_the_road_and_the_agents() -> None:
+    env = make_env("tiny", agents=2, max_steps=5, seed=0, render_mode="rgb_array")
+    try:
+        assert env.render_mode == "rgb_array" and "rgb_array" in env.metadata["render_modes"]
+        env.reset(seed=0)
+        image = env.render()
+        assert image.shape == (256, 256, 3) and image.dtype == np.uint8
+        assert (image == ROAD).all(-1).sum() > 100  # the lane axes
+        assert (image == AGENT).all(-1).sum() >= 9  # at least one 3x3 agent square
+    finally:
+        env.close()
+    with pytest.raises(BehaveError, match="render_mode"):
+        make_env("tiny", agents=1, render_mode="human")
+
+
+def test_supersuit_black_death_and_sb3_td3_learn_through_agents_leaving_at_different_times(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """SuperSuit's vector env (black death for agents that left) feeds SB3's TD3 for a few hundred
+    steps; the episodes end with agents leaving one by one (so fewer act than were started)."""
+    ss = pytest.importorskip("supersuit")
+    sb3 = pytest.importorskip("stable_baselines3")
+    env = make_env("tiny", agents=2, max_steps=80, seed=0)
+    rows = log_steps(monkeypatch)
+    venv = ss.pettingzoo_env_to_vec_env_v1(ss.black_death_v3(env))
+    venv = ss.concat_vec_envs_v1(venv, 1, num_cpus=0, base_class="stable_baselines3")
+    try:
+        model = sb3.TD3("MlpPolicy", venv, learning_starts=100, train_freq=8, gradient_steps=2,
+                        policy_kwargs={"net_arch": [32, 32]})  # fmt: skip
+        model.learn(total_timesteps=300)
+    finally:
+        venv.close()
+    assert any(before == 1 for before, _ in rows)  # one agent drove on after the other left
+    assert sum(1 for before, left in rows if before and not left) >= 2  # several episodes ended
+    assert model.num_timesteps >= 300
