@@ -51,7 +51,9 @@ def train(
         float, typer.Option(help="seconds per step", callback=POSITIVE)
     ] = DEFAULTS.step_length,
     seed: Annotated[int, typer.Option(help="makes the run repeatable", callback=SEED)] = DEFAULTS.seed,
-    scenario: Annotated[str, typer.Option(help="ring, highway or tiny")] = DEFAULTS.scenario,
+    scenario: Annotated[
+        str, typer.Option(help="ring, highway or tiny; roads = the traffic driver's family of roads")
+    ] = DEFAULTS.scenario,
     out: Annotated[
         Path | None, typer.Option(help="run directory (default runs/BEHAVIOUR-ALGO-sSEED)")
     ] = None,
@@ -67,8 +69,15 @@ def train(
         int, typer.Option(help="replay minibatch size", callback=POSITIVE)
     ] = DEFAULTS.batch_size,
     reward_scale: Annotated[
-        float, typer.Option(help="reward multiplier seen by the critic", callback=POSITIVE)
+        float | None,
+        typer.Option(
+            help="reward multiplier seen by the critic (default: 0.01 paper, 0.1 traffic)", callback=POSITIVE
+        ),
     ] = DEFAULTS.reward_scale,
+    driver: Annotated[
+        str,
+        typer.Option(help="paper (TORCS state, the paper's reward) or traffic (lanes, among SUMO's cars)"),
+    ] = DEFAULTS.driver,
     explore_decay_steps: Annotated[
         int, typer.Option(help="env steps over which exploration noise decays to 0", callback=NON_NEGATIVE)
     ] = DEFAULTS.explore_decay_steps,
@@ -93,7 +102,7 @@ def train(
         step_length=step_length, seed=seed, scenario=scenario, init=str(init) if init else None,
         updates_per_step=updates_per_step, batched_updates=batched_updates, hidden=parse_sizes(hidden),
         batch_size=batch_size, reward_scale=reward_scale, explore_decay_steps=explore_decay_steps,
-        checkpoint_every=checkpoint_every, max_minutes=max_minutes, lane_weight=lane_weight,
+        checkpoint_every=checkpoint_every, max_minutes=max_minutes, lane_weight=lane_weight, driver=driver,
     )  # fmt: skip
     run_dir = resume or out or Path("runs") / f"{behaviour}-{algo}-s{seed}"
     trainer = prepare_run(config, run_dir, resume=resume is not None, episodes=episodes)

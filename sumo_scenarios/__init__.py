@@ -41,9 +41,9 @@ __all__ = [
     "training_roads",
 ]
 
-SCENARIO_NAMES: tuple[str, ...] = ("ring", "highway", "tiny")
+SCENARIO_NAMES: tuple[str, ...] = ("ring", "highway", "tiny", "motorway")
 
-_ROUTES = {"ring": "loop", "highway": "main", "tiny": "main"}
+_ROUTES = {"ring": "loop", "highway": "main", "tiny": "main", "motorway": "main"}
 
 
 @dataclass(frozen=True)

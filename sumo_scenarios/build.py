@@ -38,6 +38,7 @@ DESCRIPTIONS = {
     "ring": "closed 3-lane oval, 3.0 km, curve radius 200 m",
     "highway": "straight 3-lane motorway, 3 km, UTM-32 projection (geo FCD)",
     "tiny": "straight 2-lane road, 600 m, for fast tests",
+    "motorway": "curved 3-lane motorway, 4.2 km, on-ramp, weave and exit (never trained on)",
 }
 
 # --precision 4: with 2 decimals, rounding alone bends 3 m curve segments by up to +-40 %.
@@ -414,6 +415,8 @@ def build_named(name: str, out_dir: Path) -> Scenario:
             lane_width=3.2,
             description=DESCRIPTIONS["tiny"],
         )
+    if name == "motorway":
+        return build_motorway(out_dir)
     raise BehaveError(f"no builder for scenario '{name}'")
 
 
@@ -444,3 +447,77 @@ def build_training_roads(root: Path) -> list[Scenario]:
             build_ring(out_dir, name=name, radius=radius, straight=600.0, lanes=lanes, lane_width=width)
         )
     return built
+
+
+MOTORWAY_NODES = (
+    ("w0", 0.0, 0.0), ("w1", 1500.0, 0.0), ("w2", 2600.0, 420.0), ("w3", 4200.0, 420.0),
+    ("ramp", 1050.0, -140.0), ("exit", 2900.0, 300.0),
+)  # fmt: skip
+MOTORWAY_EDGES = (
+    # id, from, to, lanes, speed, shape (None = straight)
+    ("m1", "w0", "w1", 3, 33.33, None),
+    ("m2", "w1", "w2", 4, 33.33, "1500,0 1800,15 2100,80 2350,210 2600,420"),
+    ("m3", "w2", "w3", 3, 33.33, "2600,420 2800,560 3100,640 3500,640 4200,420"),
+    ("r0", "ramp", "w1", 1, 22.22, None),
+    ("x0", "w2", "exit", 1, 22.22, None),
+)
+MOTORWAY_CONNECTIONS = (
+    ("m1", "m2", 0, 1), ("m1", "m2", 1, 2), ("m1", "m2", 2, 3), ("r0", "m2", 0, 0),
+    ("m2", "x0", 0, 0), ("m2", "m3", 1, 0), ("m2", "m3", 2, 1), ("m2", "m3", 3, 2),
+)  # fmt: skip
+"""A curved motorway the policies never train on: 3 lanes, an on-ramp whose acceleration lane
+becomes a fourth lane and leaves again as an exit (a weave), curves of about 500-800 m, 3.75 m
+lanes; demand from the main road and the ramp, some of it leaving at the exit."""
+
+
+def build_motorway(out_dir: Path, name: str = "motorway") -> Scenario:
+    """The evaluation motorway (see MOTORWAY_EDGES) with flows: main road through and to the exit,
+    ramp through; the route `main` runs m1 m2 m3."""
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    out_dir.mkdir(parents=True)
+    nodes = ET.Element("nodes")
+    for node, x, y in MOTORWAY_NODES:
+        ET.SubElement(nodes, "node", id=node, x=fmt(x), y=fmt(y))
+    write_xml(nodes, out_dir / f"{name}.nod.xml")
+    edges = ET.Element("edges")
+    for edge, src, dst, lanes, speed, shape in MOTORWAY_EDGES:
+        attrs = {
+            "id": edge,
+            "from": src,
+            "to": dst,
+            "numLanes": str(lanes),
+            "speed": fmt(speed),
+            "width": "3.75",
+        }
+        if shape:
+            attrs["shape"] = shape
+        ET.SubElement(edges, "edge", attrs)
+    write_xml(edges, out_dir / f"{name}.edg.xml")
+    connections = ET.Element("connections")
+    for src, dst, from_lane, to_lane in MOTORWAY_CONNECTIONS:
+        ET.SubElement(connections, "connection", {"from": src, "to": dst, "fromLane": str(from_lane),
+                                                  "toLane": str(to_lane)})  # fmt: skip
+    write_xml(connections, out_dir / f"{name}.con.xml")
+    net = netconvert(out_dir, name)
+    routes = ET.Element("routes")
+    ET.SubElement(routes, "route", id="main", edges="m1 m2 m3")
+    ET.SubElement(routes, "route", id="to_exit", edges="m1 m2 x0")
+    ET.SubElement(routes, "route", id="from_ramp", edges="r0 m2 m3")
+    for flow, route, per_hour in (
+        ("through", "main", 2400),
+        ("leaving", "to_exit", 400),
+        ("joining", "from_ramp", 500),
+    ):
+        ET.SubElement(routes, "flow", id=flow, route=route, type="behave_background", begin="0", end="100000",
+                      vehsPerHour=str(per_hour), departLane="best", departSpeed="desired")  # fmt: skip
+    write_xml(routes, out_dir / f"{name}.rou.xml")
+    return Scenario(
+        name=name,
+        net=net,
+        routes=out_dir / f"{name}.rou.xml",
+        vtypes=shared_vtypes(out_dir),
+        route_id="main",
+        looping=False,
+        description=DESCRIPTIONS["motorway"],
+    )

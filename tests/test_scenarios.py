@@ -7,7 +7,6 @@ import subprocess
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import replace
 
 import pytest
 import sumolib
@@ -23,6 +22,7 @@ from sumo_scenarios import (
     get_scenario,
     route_edges,
     scenario_info,
+    training_roads,
 )
 
 EXPECTED = {"ring": (3, 3.5), "highway": (3, 3.5), "tiny": (2, 3.2)}
@@ -49,7 +49,7 @@ def simulation(scenario: Scenario) -> Iterator[object]:
         libsumo.close()
 
 
-@pytest.mark.parametrize("name", SCENARIO_NAMES)
+@pytest.mark.parametrize("name", sorted(EXPECTED))
 def test_bundled_scenario_lanes_and_width(name: str) -> None:
     scenario = get_scenario(name)
     lanes, width = EXPECTED[name]
@@ -134,12 +134,26 @@ def test_highway_fcd_distance_is_the_road_position(tmp_path) -> None:
 
 def test_build_reproduces_the_shipped_networks(tmp_path) -> None:
     built = build_scenarios(tmp_path)
-    assert [s.name for s in built] == list(SCENARIO_NAMES)
-    for scenario in built:
+    roads = training_roads()
+    assert [s.name for s in built] == [*SCENARIO_NAMES, *(r.name for r in roads)]
+    for scenario, shipped in zip(built, [*map(get_scenario, SCENARIO_NAMES), *roads], strict=True):
         assert scenario.net.parent == tmp_path / scenario.name
-        shipped = get_scenario(scenario.name)
-        assert replace(scenario, net=shipped.net, routes=shipped.routes, vtypes=shipped.vtypes) == (shipped)
         assert scenario_info(scenario) == scenario_info(shipped)
+
+
+def test_the_motorway_has_a_ramp_a_weave_and_an_exit_that_cars_use() -> None:
+    net = read_net(get_scenario("motorway"))
+    lanes = {e.getID(): e.getLaneNumber() for e in net.getEdges() if e.getFunction() == ""}
+    assert lanes == {"m1": 3, "m2": 4, "m3": 3, "r0": 1, "x0": 1}
+    assert {ln.getWidth() for e in net.getEdges() for ln in e.getLanes()} == {3.75}
+    m2 = net.getEdge("m2")
+    assert [c.getTo().getID() for c in m2.getLanes()[0].getOutgoing()] == ["x0"]  # lane 0 leaves
+    seen: set[str] = set()
+    with simulation(get_scenario("motorway")) as sumo:
+        for _ in range(1200):  # 120 s: the first cars from the main road reach the exit
+            sumo.simulationStep()
+            seen.update(sumo.vehicle.getRoadID(v) for v in sumo.vehicle.getIDList())
+    assert {"m1", "m2", "m3", "r0", "x0"} <= seen
 
 
 def test_build_ring_scales_for_benchmarks(tmp_path) -> None:
@@ -198,7 +212,9 @@ def test_vtypes_define_agents_and_sumo_driven_cars() -> None:
 
 
 def test_unknown_scenario_names_the_choices() -> None:
-    with pytest.raises(BehaveError, match=r"unknown scenario 'nope' \(choose from ring, highway, tiny\)"):
+    with pytest.raises(
+        BehaveError, match=r"unknown scenario 'nope' \(choose from ring, highway, tiny, motorway\)"
+    ):
         get_scenario("nope")
 
 
