@@ -28,9 +28,9 @@ def seconds(run) -> float:
 def cli_run(net: Path, policy: Path) -> float:
     """Wall seconds of a whole `behave populate` of 1 simulated second (torch import included)."""
     with tempfile.TemporaryDirectory() as tmp:
-        command = [sys.executable, "-m", "cli", "populate", "--net", str(net), "--policy", str(policy),
-                   "--keepers", "10", "--overtakers", "10", "--background", "40", "--duration", "1",
-                   "--fcd", f"{tmp}/fcd.xml"]  # fmt: skip
+        command = [sys.executable, "-m", "behaviors.cli", "populate", "--net", str(net),
+                   "--policy", str(policy), "--keepers", "10", "--overtakers", "10", "--background", "40",
+                   "--duration", "1", "--fcd", f"{tmp}/fcd.xml"]  # fmt: skip
         start = time.perf_counter()
         subprocess.run(command, check=True, capture_output=True)
         return time.perf_counter() - start

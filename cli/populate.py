@@ -18,7 +18,7 @@ from sumo_scenarios import get_scenario
 
 DEFAULTS = SimpleNamespace(
     net=get_scenario("highway").net, overtakers=4, keepers=4, background=20, duration=180.0,
-    step_length=0.2, seed=0, shield=True, precision="auto",
+    step_length=0.2, seed=0, shield=True, precision="auto", share=0.0, overtaker_fraction=0.5,
 )  # fmt: skip
 """PopulateConfig's defaults, spelled out so that `--help` needs no torch (a test keeps them equal)."""
 DEFAULT_POLICY = Path(behaviors.__file__).parent / "pretrained" / "multi.pt"
@@ -40,13 +40,13 @@ def populate_command(
         typer.Option(
             help="with --sumocfg: this fraction of the scenario's passenger cars become agents (0-1)"
         ),
-    ] = 0.0,
+    ] = DEFAULTS.share,
     overtaker_fraction: Annotated[
         float,
         typer.Option(
             help="of the agents from --share, the fraction that are overtakers (the rest keep lanes)"
         ),
-    ] = 0.5,
+    ] = DEFAULTS.overtaker_fraction,
     overtakers: Annotated[
         int | None,
         typer.Option(
