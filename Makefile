@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 
-.PHONY: setup run test lint bench learn-check pretrained paper clean
+.PHONY: setup run test lint bench learn-check pretrained paper realism clean
 
 setup: $(STAMP)
 
@@ -21,6 +21,7 @@ $(STAMP): pyproject.toml constraints.txt
 
 run: $(STAMP)
 	$(BIN)/behave populate --seed $(SEED) --keep-count --fcd runs/populate/fcd.xml --plot runs/populate/traces.png
+	$(BIN)/behave report runs/populate/fcd.xml --net sumo_scenarios/data/highway/highway.net.xml --out runs/populate
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
@@ -38,6 +39,9 @@ learn-check: $(STAMP)
 
 pretrained: $(STAMP)
 	$(BIN)/python benchmarks/make_pretrained.py --seed $(SEED)
+
+realism: $(STAMP)
+	$(BIN)/python benchmarks/traffic_bars.py --seeds 0,1,2
 
 paper: $(STAMP)
 	$(BIN)/python benchmarks/paper.py --seed $(SEED)

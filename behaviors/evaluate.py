@@ -18,7 +18,7 @@ import torch
 
 from behaviors.ddpg.checkpoint import load_actor, load_checkpoint
 from behaviors.ddpg.networks import Actor
-from behaviors.env import BEHAVIOURS, BehaveEnv, EnvConfig
+from behaviors.env import BEHAVIOURS, EnvConfig, create_env
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_write_bytes, atomic_write_text, ensure_writable_dir
 from behaviors.metrics import EpisodeStats, mean_rows, passed_fraction, summary
@@ -65,7 +65,7 @@ def checkpoint_policy(path: Path, obs_dim: int) -> Policy:
 
 def evaluate(config: EnvConfig, policy: Policy, episodes: int, seed: int) -> list[dict[str, Any]]:
     """`episodes` rows of `summary`, each from a fresh, seeded episode."""
-    env = BehaveEnv(config)
+    env = create_env(config)
     limit = max(info.speed for info in env.geometry.edges.values() if info.normal)
     rows = []
     try:
@@ -158,7 +158,7 @@ def plan_evaluation(
             for n in agents
         ]  # fmt: skip
     for _, config in settings:
-        BehaveEnv(config).close()  # validates scenario, counts and capacity before any long run
+        create_env(config).close()  # validates scenario, counts and capacity before any long run
     policies: list[tuple[str, Path | None]] = [(path.stem, path) for path in checkpoints]
     if baseline:
         policies.append((f"{BASELINE} (Krauss + SL2015)", None))

@@ -1,10 +1,12 @@
 """Train the bundled policies and write their model card (`make pretrained`).
 
-Lane keeping first (PS-DDPG, 6 agents on the ring), then overtaking from the
-lane-keeping weights (the paper's curriculum) and multi-behaviour 4+4 from the
-same weights (the behaviour id's inputs start at zero). Each policy is
-evaluated without exploration; the better of the final and the best-in-training
-checkpoint ships as actor-only weights in behaviors/pretrained/.
+The traffic driver's policy (traffic.pt, populate's default: keepers and overtakers in one
+network among SUMO's traffic on the family of training roads) trains on one core for the
+whole budget. Beside it, on the other core, the paper's policies: lane keeping first (PS-DDPG,
+6 agents on the ring), then overtaking from the lane-keeping weights (the paper's curriculum)
+and multi-behaviour 4+4 from the same weights (the behaviour id's inputs start at zero). Each
+policy is evaluated without exploration; the safest, then most rewarded, saved checkpoint ships
+as actor-only weights in behaviors/pretrained/.
 """
 
 from __future__ import annotations
@@ -41,6 +43,21 @@ def train_command(
     return [sys.executable, "-m", "behaviors.cli", "train", *args, "--seed", str(seed),
             "--out", str(runs / name), "--max-minutes", str(minutes), "--episodes", "2000",
             "--checkpoint-every", "10", "--lane-weight", str(lane_weight)]  # fmt: skip
+
+
+TRAFFIC_ARGS = ["multi", "--driver", "traffic", "--scenario", "roads", "--overtakers", "4",
+                "--keepers", "4", "--max-steps", "500", "--updates-per-step", "2",
+                "--explore-decay-steps", "40000"]  # fmt: skip
+"""The traffic policy's run: 100 s episodes, two updates per step (not one per agent: the
+wall-clock budget buys more experience), exploration decaying over 40,000 steps."""
+TRAFFIC_EVAL = EnvConfig(scenario="roads", driver="traffic", behaviour="multi", overtakers=4, keepers=4,
+                         max_steps=500)  # fmt: skip
+
+
+def traffic_command(runs: Path, seed: int, minutes: float) -> list[str]:
+    return [sys.executable, "-m", "behaviors.cli", "train", *TRAFFIC_ARGS, "--seed", str(seed),
+            "--out", str(runs / "traffic"), "--max-minutes", str(minutes), "--episodes", "5000",
+            "--checkpoint-every", "10"]  # fmt: skip
 
 
 def run_parallel(commands: list[list[str]]) -> list[float]:
@@ -107,16 +124,21 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--runs", type=Path, default=Path("runs/pretrained"))
-    parser.add_argument("--minutes", default="8,12,20", help="budgets: lanekeeping,overtaking,multi")
+    parser.add_argument(
+        "--minutes", default="8,12,20,60", help="budgets: lanekeeping,overtaking,multi,traffic"
+    )
     parser.add_argument("--eval-episodes", type=int, default=5)
     parser.add_argument("--pick-only", action="store_true", help="re-evaluate existing runs, no training")
     args = parser.parse_args()
-    lk_min, ot_min, multi_min = (float(x) for x in args.minutes.split(","))
+    lk_min, ot_min, multi_min, traffic_min = (float(x) for x in args.minutes.split(","))
     s = args.seed
     sections = []
     results = {}
 
     runs = args.runs
+    traffic_cmd = traffic_command(runs, s, traffic_min)
+    traffic_start = time.perf_counter()
+    traffic = None if args.pick_only else subprocess.Popen(traffic_cmd)
     lk_cmd = train_command("lanekeeping", ["lanekeeping", "--agents", "6"], runs, s, lk_min)
     [wall] = recorded_walls([runs / "lanekeeping"]) if args.pick_only else run_parallel([lk_cmd])
     lk_env = EnvConfig(agents=6, max_steps=1000)
@@ -148,12 +170,26 @@ def main() -> None:
         sections.append(card_section(title, cmd, s, wall, runs / name, chosen,
                                      {**m, "episodes": args.eval_episodes}))  # fmt: skip
 
+    if traffic is not None and traffic.wait() != 0:
+        raise SystemExit(f"training failed: {shlex.join(traffic_cmd)}")
+    [traffic_wall] = (
+        recorded_walls([runs / "traffic"]) if args.pick_only else [time.perf_counter() - traffic_start]
+    )
+    chosen, m = pick(runs / "traffic", TRAFFIC_EVAL, s, args.eval_episodes)
+    save_actor_only(chosen, PRETRAINED / "traffic.pt")
+    results["traffic"] = m
+    sections.insert(0, card_section("Traffic driver, keepers and overtakers in one network (traffic.pt)",
+                                    traffic_cmd, s, traffic_wall, runs / "traffic", chosen,
+                                    {**m, "episodes": args.eval_episodes}))  # fmt: skip
+
     header = (
         "# Bundled policies: model card\n\n"
         "Trained by this project with `make pretrained` (benchmarks/make_pretrained.py) on a 2-core CPU, "
         "PS-DDPG with the defaults of `behave train` unless the command says otherwise. "
         "Files hold actor weights only (`behave` never needs the critic to drive). "
-        "Scenario: the bundled 3 km, 3-lane ring; 1000 steps of 0.2 s per episode.\n\n"
+        "Paper policies: the bundled 3 km, 3-lane ring, 1000 steps of 0.2 s per episode. Traffic policy: "
+        "the five training roads among SUMO's cars, 500 steps per episode; its realism against the bars "
+        "of issue 11 is in docs/realism.md (`make realism`).\n\n"
     )
     atomic_write_text(PRETRAINED / "MODEL_CARD.md", header + "\n".join(sections))
     atomic_write_text(args.runs / "evaluation.json", json.dumps(results, indent=2))
