@@ -47,6 +47,10 @@ QUEUE_GAP = 20.0
 """m: an agent this close behind its leader is queueing, not failing to make progress."""
 
 
+class NoRoomError(BehaveError):
+    """No agent found a free place this episode (the traffic drawn was too dense): another seed may."""
+
+
 def desired_fractions(behaviour_id: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Desired speed per agent as a share of the local limit: overtakers want more than keepers."""
     out = np.empty(len(behaviour_id))
@@ -151,7 +155,7 @@ class TrafficEnv(BehaveEnv):
         sim.remove(sorted(pending))  # no free place this episode: the slot sits it out
         slots = np.array([k for k, name in enumerate(names) if name not in pending], np.int64)
         if not len(slots):
-            raise BehaveError(f"no agent could be inserted on {self.scenario.name}: traffic too dense")
+            raise NoRoomError(f"no agent could be inserted on {self.scenario.name}: traffic too dense")
         ids = [names[k] for k in slots]
         sim.take_control(ids)
         behaviour = self.slot_behaviour[slots]
