@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import numbers
 import signal
 import time
 from collections.abc import Callable, Iterator
@@ -178,6 +179,7 @@ class Trainer:
         self.episode = 0
         self.best = -np.inf
         self.stop_signal: int | None = None  # SIGINT or SIGTERM, once one asked to stop
+        self.tensorboard: Any = None  # a SummaryWriter while run() trains, if tensorboard is installed
 
     @property
     def stop_requested(self) -> bool:
@@ -287,6 +289,7 @@ class Trainer:
         with _stop_on_signals(self):
             started = time.perf_counter()
             budget = np.inf if self.config.max_minutes is None else 60.0 * self.config.max_minutes
+            self.tensorboard = open_tensorboard(self.out / "tensorboard")
             try:
                 while (
                     self.episode < self.config.episodes
@@ -303,6 +306,8 @@ class Trainer:
                         on_episode(row)
             finally:
                 self.env.close()
+                if self.tensorboard is not None:
+                    self.tensorboard.close()
         self.save_policy("interrupted" if self.stop_requested else "final")
         write_metrics(self.out / "metrics.csv", self.rows)
         plot_curve(self.out / "curve.png", self.rows)
@@ -349,6 +354,8 @@ class Trainer:
         if improved:
             self.best = row["reward_sum"]
         self.save_state()
+        if self.tensorboard is not None:  # after the state: a resumed run never logs an episode twice
+            log_scalars(self.tensorboard, row)
         self.save_policy("last")
         if improved:
             self.save_policy("best")
@@ -408,6 +415,24 @@ def write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:
 
     if rows:
         atomic_write_text(path, pd.DataFrame(rows).to_csv(index=False))
+
+
+def open_tensorboard(directory: Path) -> Any:
+    """A SummaryWriter into the run's tensorboard/ folder, or None without the tensorboard package
+    (an optional extra: metrics.csv stays the record). A resumed run adds an event file beside."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        return None
+    return SummaryWriter(log_dir=str(directory))
+
+
+def log_scalars(writer: Any, row: dict[str, Any]) -> None:
+    """Every numeric column of an episode's metrics row, at the episode number as global step."""
+    for name, value in row.items():
+        if isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_):
+            writer.add_scalar(name, float(value), global_step=int(row["episode"]))
+    writer.flush()
 
 
 def plot_curve(path: Path, rows: list[dict[str, Any]]) -> None:
