@@ -261,3 +261,19 @@ def test_an_agent_stops_at_a_red_light_instead_of_entering_the_junction(tmp_path
             lanes.add(sim.read_agents(["agent"]).lane_id[0])
         assert lanes <= {"in_0", "in_1"} and fleet.rows.handed[0] and fleet.handovers == 1
         assert float(sim.read_speeds(["agent"])[0]) < 0.1  # waiting at the line
+
+
+def test_routes_add_to_the_scenarios_own_demand(tmp_path):
+    cfg = roads_scenario(tmp_path, roads=1, end=20.0)
+    extra = tmp_path / "extra.rou.xml"
+    extra.write_text(
+        '<routes><vehicle id="guest" depart="1" departLane="1"><route edges="r0"/></vehicle></routes>'
+    )
+    fcd = tmp_path / "o.xml"
+    populate(config_from(cfg, routes=extra, policy=traffic_policy(tmp_path), fcd=fcd))
+    ids = set(read_fcd(fcd)["id"])
+    assert (
+        "guest" in ids
+        and any(v.startswith("car0.") for v in ids)
+        and any(v.startswith("lorry0.") for v in ids)
+    )
