@@ -171,7 +171,8 @@ def read_net(path: Path) -> NetTables:
     out = NetTables()
     car_lane: set[str] = set()
     normal: set[str] = set()
-    opener = gzip.open if path.read_bytes()[:2] == b"\x1f\x8b" else open
+    with open(path, "rb") as head:
+        opener = gzip.open if head.read(2) == b"\x1f\x8b" else open
     with opener(path, "rb") as stream:
         for event, elem in ET.iterparse(stream, events=("start", "end")):
             if event == "start":
