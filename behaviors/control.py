@@ -289,6 +289,9 @@ class Fleet:
             lanes=count,
             lane_leads_on=r.lane_ends - readings.lane_pos[:, None],
             behaviour_id=r.behaviour_id,
+            # SUMO's lane indices and posLat grow towards the fast side in both kinds of net; the
+            # world frame's left is the fast side only in keep-right nets
+            fast_side_sign=-1.0 if g.lefthand else 1.0,
         )
         speeds = sim.read_speeds(vehicles.ids)
         speeds[rows] = r.speed
@@ -365,7 +368,9 @@ class Fleet:
         by_sumo = led[by_agent < 0]
         if len(by_sumo):
             leader_speed[by_sumo] = sim.read_speeds([vehicles.ids[r] for r in around.leader[by_sumo]])
-        r.side_limit = side_limits(around.side_room)
+        limits = side_limits(around.side_room)  # geometric (left, right)
+        # moves are signed like SUMO's lane indices: + is the geometric right in left-hand nets
+        r.side_limit = limits[:, ::-1] if self.geometry.lefthand else limits
         r.speed_cap = safe_speed(around.leader_gap, leader_speed, r.speed, self.dt, self.car)
 
     def _without_handed(self, result: Actuation) -> Actuation:

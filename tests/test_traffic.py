@@ -250,3 +250,26 @@ def test_sumo_takes_an_agent_whose_lane_becomes_an_exit_and_hands_it_back(tmp_pa
         assert handed_at_some_point and fleet.handovers == 1
         assert "agent" not in sim.vehicle_ids()  # it reached the end of B
         assert lowest_speed > 15.0  # never stopped at the end of the exit lane
+
+
+@pytest.mark.parametrize("lefthand", [False, True])
+def test_the_fast_side_is_the_higher_lane_index_in_right_and_left_hand_nets(tmp_path, lefthand):
+    """A car in lane 2 beside an agent in lane 1 is on the agent's fast side in both kinds of net."""
+    net = tmp_path / "h.net.xml"
+    cmd = [sumo_binary("netconvert"), "-s", str(get_scenario("highway").net), "-o", str(net)]
+    subprocess.run(cmd + (["--lefthand"] if lefthand else []), check=True, capture_output=True)
+    geometry = load_geometry(net)
+    assert geometry.lefthand == lefthand
+    fleet = Fleet(geometry, CarModel(), 0.2, PhaseTimer(), driver="traffic")
+    options = SimOptions(net=net, additional=(get_scenario("highway").vtypes,), step_length=0.2)
+    with SumoSim(options) as sim:
+        sim.add_route("main", ["e0", "e1"])
+        sim.add_vehicle("agent", "main", "behave_keeper", lane=1, pos=100.0, speed=20.0)
+        sim.add_vehicle("beside", "main", "behave_passive", lane=2, pos=102.0, speed=20.0)
+        sim.step()
+        sim.take_control(["agent"])
+        fleet.add(["agent"], np.array([20.0]), np.array([1.0]), np.array([0.9]))
+        obs = fleet.sense(sim, sim.read_vehicles(), True)
+    gap = obs[0, TRAFFIC_SLICES["gap"]]
+    assert gap[2] == 0.0  # fast-side leader alongside
+    assert gap[4] == 1.0 and gap[5] == 1.0  # nobody in the slow-side lane
