@@ -327,7 +327,11 @@ class Fleet:
         own_left = r.lane_ends[:, 0] - readings.lane_pos
         reach = np.maximum(HANDOVER_DISTANCE, HANDOVER_SECONDS * r.speed)
         ending = (own_left < reach) & (r.best_end > r.lane_ends[:, 0] + LANE_END_MARGIN)
-        signal = sim.signal_ahead(r.ids, np.maximum(SIGNAL_DISTANCE, SIGNAL_SECONDS * r.speed))
+        signal = (
+            sim.signal_ahead(r.ids, np.maximum(SIGNAL_DISTANCE, SIGNAL_SECONDS * r.speed))
+            if sim.has_signals
+            else np.zeros(len(r.ids), bool)  # most motorway nets: no per-agent query at all
+        )
         needs_sumo = (normal & (ending | (lanes < 2))) | signal
         free = (
             normal

@@ -9,6 +9,7 @@ close. No other module imports libsumo.
 from __future__ import annotations
 
 import contextlib
+import functools
 import re
 import weakref
 import xml.etree.ElementTree as ET
@@ -173,6 +174,7 @@ class SumoSim:
         self._sumo.load(options.command()[1:])
         self.options = options
         self.step_length = options.step_length
+        self.__dict__.pop("has_signals", None)  # another net: ask again
 
     def close(self) -> None:
         """Stop SUMO (once; closing again is harmless) and let another simulation start."""
@@ -316,6 +318,11 @@ class SumoSim:
 
     def set_type(self, vid: str, vtype: str) -> None:
         self._sumo.vehicle.setType(vid, vtype)
+
+    @functools.cached_property
+    def has_signals(self) -> bool:
+        """Whether the net has traffic lights (fixed for a run)."""
+        return self._sumo.trafficlight.getIDCount() > 0
 
     def signal_ahead(self, ids: Sequence[str], reach: np.ndarray) -> np.ndarray:
         """Whether a red or yellow (or red-yellow) signal lies on each vehicle's route within `reach` m."""

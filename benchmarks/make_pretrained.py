@@ -56,7 +56,7 @@ TRAFFIC_EVAL = EnvConfig(scenario="roads", driver="traffic", behaviour="multi", 
 
 def traffic_command(runs: Path, seed: int, minutes: float) -> list[str]:
     return [sys.executable, "-m", "behaviors.cli", "train", *TRAFFIC_ARGS, "--seed", str(seed),
-            "--out", str(runs / "traffic"), "--max-minutes", str(minutes), "--episodes", "5000",
+            "--out", str(runs / "traffic"), "--max-minutes", str(minutes), "--episodes", "2000",
             "--checkpoint-every", "10"]  # fmt: skip
 
 
@@ -120,25 +120,14 @@ def card_section(title: str, cmd: list[str], seed: int, wall: float, out: Path, 
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--runs", type=Path, default=Path("runs/pretrained"))
-    parser.add_argument(
-        "--minutes", default="8,12,20,60", help="budgets: lanekeeping,overtaking,multi,traffic"
-    )
-    parser.add_argument("--eval-episodes", type=int, default=5)
-    parser.add_argument("--pick-only", action="store_true", help="re-evaluate existing runs, no training")
-    args = parser.parse_args()
-    lk_min, ot_min, multi_min, traffic_min = (float(x) for x in args.minutes.split(","))
-    s = args.seed
-    sections = []
-    results = {}
+TRAFFIC_TITLE = "Traffic driver, keepers and overtakers in one network (traffic.pt)"
 
-    runs = args.runs
-    traffic_cmd = traffic_command(runs, s, traffic_min)
-    traffic_start = time.perf_counter()
-    traffic = None if args.pick_only else subprocess.Popen(traffic_cmd)
+
+def paper_stage(args: argparse.Namespace, minutes: list[float]) -> tuple[list[str], dict]:
+    """Lane keeping, then overtaking and multi from its weights (side by side); their card sections."""
+    runs, s = args.runs, args.seed
+    lk_min, ot_min, multi_min = minutes
+    sections, results = [], {}
     lk_cmd = train_command("lanekeeping", ["lanekeeping", "--agents", "6"], runs, s, lk_min)
     [wall] = recorded_walls([runs / "lanekeeping"]) if args.pick_only else run_parallel([lk_cmd])
     lk_env = EnvConfig(agents=6, max_steps=1000)
@@ -169,18 +158,48 @@ def main() -> None:
         results[name] = m
         sections.append(card_section(title, cmd, s, wall, runs / name, chosen,
                                      {**m, "episodes": args.eval_episodes}))  # fmt: skip
+    return sections, results
 
-    if traffic is not None and traffic.wait() != 0:
-        raise SystemExit(f"training failed: {shlex.join(traffic_cmd)}")
-    [traffic_wall] = (
-        recorded_walls([runs / "traffic"]) if args.pick_only else [time.perf_counter() - traffic_start]
+
+def kept_paper_sections() -> list[str]:
+    """The paper policies' sections of the current model card (when only the traffic stage runs)."""
+    card = PRETRAINED / "MODEL_CARD.md"
+    if not card.exists():
+        return []
+    parts = card.read_text().split("\n## ")[1:]
+    return ["## " + part.rstrip("\n") + "\n" for part in parts if not part.startswith(TRAFFIC_TITLE)]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--runs", type=Path, default=Path("runs/pretrained"))
+    parser.add_argument(
+        "--minutes", default="8,12,20,60", help="budgets: lanekeeping,overtaking,multi,traffic"
     )
-    chosen, m = pick(runs / "traffic", TRAFFIC_EVAL, s, args.eval_episodes)
-    save_actor_only(chosen, PRETRAINED / "traffic.pt")
-    results["traffic"] = m
-    sections.insert(0, card_section("Traffic driver, keepers and overtakers in one network (traffic.pt)",
-                                    traffic_cmd, s, traffic_wall, runs / "traffic", chosen,
-                                    {**m, "episodes": args.eval_episodes}))  # fmt: skip
+    parser.add_argument("--stages", default="paper,traffic", help="paper, traffic or both")
+    parser.add_argument("--eval-episodes", type=int, default=5)
+    parser.add_argument("--pick-only", action="store_true", help="re-evaluate existing runs, no training")
+    args = parser.parse_args()
+    *paper_minutes, traffic_min = (float(x) for x in args.minutes.split(","))
+    stages = set(args.stages.split(","))
+    s, runs = args.seed, args.runs
+    traffic_cmd = traffic_command(runs, s, traffic_min)
+    traffic_start = time.perf_counter()
+    training = "traffic" in stages and not args.pick_only
+    traffic = subprocess.Popen(traffic_cmd) if training else None
+    sections, results = paper_stage(args, paper_minutes) if "paper" in stages else (kept_paper_sections(), {})
+    if "traffic" in stages:
+        if traffic is not None and traffic.wait() != 0:
+            raise SystemExit(f"training failed: {shlex.join(traffic_cmd)}")
+        [traffic_wall] = (
+            recorded_walls([runs / "traffic"]) if args.pick_only else [time.perf_counter() - traffic_start]
+        )
+        chosen, m = pick(runs / "traffic", TRAFFIC_EVAL, s, args.eval_episodes)
+        save_actor_only(chosen, PRETRAINED / "traffic.pt")
+        results["traffic"] = m
+        sections.insert(0, card_section(TRAFFIC_TITLE, traffic_cmd, s, traffic_wall, runs / "traffic", chosen,
+                                        {**m, "episodes": args.eval_episodes}))  # fmt: skip
 
     header = (
         "# Bundled policies: model card\n\n"

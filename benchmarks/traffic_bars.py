@@ -23,7 +23,7 @@ import pandas as pd
 from behaviors.export import read_fcd
 from behaviors.files import atomic_write_text
 from behaviors.populate import PopulateConfig, populate
-from behaviors.realism import agents_path, measure, read_agents, read_lanes, write_realism
+from behaviors.realism import agents_path, measure, read_agents, read_lanes, write_report
 from sumo_scenarios import get_scenario
 
 KEEPERS = "keepers"
@@ -124,7 +124,7 @@ def main() -> None:
             facts = run(args.policy, setup, seed, args.duration, fcd, False)
             facts["shield_speed_share"] = shielded["shield_speed_share"] if seed == seeds[0] else math.nan
             report = measure(read_fcd(fcd), lanes, agents=read_agents(agents_path(fcd)))
-            write_realism(report, fcd.parent, title=f"{name} seed {seed}")
+            write_report(report, fcd.parent, title=f"{name} seed {seed}")
             columns[f"{name} s{seed}"] = (report.table, facts)
             print(f"{name} seed {seed}: {facts['summary'].agent_steps} agent-steps, "
                   f"{facts['losses_per_hour']:.2f} losses per agent-hour")  # fmt: skip
