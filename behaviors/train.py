@@ -86,6 +86,7 @@ class TrainConfig:
     checkpoint_every: int = 10
     init: str | None = None  # checkpoint to start from (curriculum: overtaking from lane keeping)
     max_minutes: float | None = None  # wall-clock budget: stop after the episode that exceeds it
+    workers: int = 1  # more: rollout workers on Ray, one learner (distributed.py)
 
     def validate(self) -> None:
         if self.algo not in ALGORITHMS:
@@ -96,6 +97,10 @@ class TrainConfig:
             raise BehaveError(f"episodes must be positive, got {self.episodes}")
         if self.updates_per_step is not None and self.updates_per_step < 0:
             raise BehaveError(f"updates per step must be >= 0, got {self.updates_per_step}")
+        if self.workers < 1:
+            raise BehaveError(f"workers must be positive, got {self.workers}")
+        if self.workers > 1 and self.algo == "multi-ddpg":
+            raise BehaveError("--workers trains ps-ddpg or ddpg (multi-ddpg has a learner per agent)")
         if not self.hidden or min(self.hidden) < 1:
             raise BehaveError(f"network sizes must be positive, got {self.hidden}")
         self.env_config().validate()
@@ -473,11 +478,19 @@ def plot_curve(path: Path, rows: list[dict[str, Any]]) -> None:
     atomic_write_bytes(path, buffer.getvalue())
 
 
-def prepare_run(config: TrainConfig, out: Path, *, resume: bool, episodes: int | None = None) -> Trainer:
+def prepare_run(
+    config: TrainConfig,
+    out: Path,
+    *,
+    resume: bool,
+    episodes: int | None = None,
+    ray_address: str | None = None,
+) -> Trainer:
     """Create (or reopen with --resume) a run directory and its trainer; a new run's state is
     saved at once, so that a run stopped in its first episode can be resumed.
 
-    On resume the stored config is used; `episodes` (if given) sets the new total.
+    On resume the stored config is used; `episodes` (if given) sets the new total. With more than
+    one worker the episodes run on Ray (local, or the cluster at `ray_address`).
     """
     if resume:
         saved = out / "config.json"
@@ -491,7 +504,12 @@ def prepare_run(config: TrainConfig, out: Path, *, resume: bool, episodes: int |
             raise BehaveError(f"{out} already holds a run: use --resume or another --out")
     ensure_writable_dir(out)
     ensure_writable_dir(out / "checkpoints")
-    trainer = Trainer(config, out)
+    if config.workers > 1:
+        from behaviors.distributed import DistributedTrainer
+
+        trainer: Trainer = DistributedTrainer(config, out, ray_address)
+    else:
+        trainer = Trainer(config, out)
     if resume:
         trainer.load_state()
         if trainer.episode > config.episodes:

@@ -16,6 +16,7 @@ from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED
 DEFAULTS = SimpleNamespace(
     algo="ps-ddpg", agents=6, episodes=100, max_steps=1000, step_length=0.2, seed=0, scenario="ring",
     batch_size=64, reward_scale=None, driver="paper", explore_decay_steps=100_000, lane_weight=0.0,
+    workers=1,
 )  # fmt: skip
 """TrainConfig's defaults, spelled out so that `--help` needs no torch (a test keeps them equal)."""
 
@@ -91,6 +92,12 @@ def train(
     max_minutes: Annotated[
         float | None, typer.Option(help="wall-clock budget; stops after that episode", callback=NON_NEGATIVE)
     ] = None,
+    workers: Annotated[
+        int, typer.Option(help="rollout workers (over 1: on Ray, each with its own SUMO)", callback=POSITIVE)
+    ] = DEFAULTS.workers,
+    ray_address: Annotated[
+        str | None, typer.Option(help="join this Ray cluster (default: a local Ray) with --workers")
+    ] = None,
 ) -> None:
     """Train a behaviour; Ctrl-C or SIGTERM stops it (exit 130 or 143), resumable with --resume."""
     from behaviors.train import TrainConfig, prepare_run  # torch: only when training
@@ -103,9 +110,12 @@ def train(
         updates_per_step=updates_per_step, batched_updates=batched_updates, hidden=parse_sizes(hidden),
         batch_size=batch_size, reward_scale=reward_scale, explore_decay_steps=explore_decay_steps,
         checkpoint_every=checkpoint_every, max_minutes=max_minutes, lane_weight=lane_weight, driver=driver,
+        workers=workers,
     )  # fmt: skip
     run_dir = resume or out or Path("runs") / f"{behaviour}-{algo}-s{seed}"
-    trainer = prepare_run(config, run_dir, resume=resume is not None, episodes=episodes)
+    trainer = prepare_run(
+        config, run_dir, resume=resume is not None, episodes=episodes, ray_address=ray_address
+    )
     total = trainer.config.episodes
     columns = (
         TextColumn("episode"), MofNCompleteColumn(), BarColumn(), TextColumn("{task.fields[status]}"),

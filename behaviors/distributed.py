@@ -1,0 +1,184 @@
+"""`behave train --workers N`: PS-DDPG with N rollout workers on Ray and one learner.
+
+libsumo runs one simulation per process, so each rollout worker is a Ray actor (its own
+process, its own SUMO). A worker drives whole episodes with the shared actor's weights as of
+the episode's start and its own exploration noise, and sends the episode's transitions back.
+The learner (this process) owns the one replay buffer: it stores each finished episode, does
+that episode's share of updates (one per agent transition, the paper's schedule, unless
+--updates-per-step) while the workers drive the next episodes, and hands the new weights to the
+worker it starts next. Metrics, checkpoints, TensorBoard and --resume are the Trainer's; a
+resumed run continues with fresh episodes (the workers' timing makes runs not bit-repeatable).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from behaviors.ddpg.learner import DDPGLearner, clip_actions
+from behaviors.ddpg.networks import Actor
+from behaviors.ddpg.noise import OUNoise
+from behaviors.env import create_env
+from behaviors.errors import BehaveError
+from behaviors.metrics import EpisodeStats
+from behaviors.train import TrainConfig, Trainer, episode_row, episode_seed
+
+WAIT_S = 0.5
+"""How often the learner looks for a stop signal while it waits for an episode."""
+OBJECT_STORE_BYTES = 256 * 2**20
+"""A local Ray's shared memory: an episode's transitions are a few MB."""
+CONNECT_S = 5.0
+INSTALL_HINT = "--workers needs Ray: pip install 'behave-traffic[distributed]'"
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """One episode of one worker: its transitions, row by row in step order, and its counters."""
+
+    obs: np.ndarray
+    act: np.ndarray
+    rew: np.ndarray  # scaled for the critic
+    next_obs: np.ndarray
+    terminated: np.ndarray
+    steps: int
+    stats: EpisodeStats
+    wall_s: float
+
+
+class RolloutWorker:
+    """Drives episodes in its own process (a Ray actor) with the weights it is given."""
+
+    def __init__(self, config: TrainConfig, index: int) -> None:
+        torch.set_num_threads(1)  # SUMO and the actor share the worker's core
+        self.config = config
+        self.env = create_env(config.env_config())
+        learner = config.ddpg_config()
+        self.actor = Actor(self.env.config.obs_size, learner.hidden)
+        self.noise = OUNoise(
+            learner.ou_mu, learner.ou_theta, learner.ou_sigma, config.seed + 1000 * (index + 1),
+            learner.explore_decay_steps,
+        )  # fmt: skip
+
+    def episode(self, actor_state: dict[str, torch.Tensor], seed: int, explore_step: int) -> Rollout:
+        """One episode; `explore_step` (env steps so far, all workers) sets the noise's decay."""
+        start = time.perf_counter()
+        env, scale = self.env, self.config.critic_reward_scale
+        self.actor.load_state_dict(actor_state)
+        self.noise.steps = explore_step
+        obs = env.reset_arrays(seed)
+        log = EpisodeStats(env.config.n_agents, env.slot_behaviour.copy())
+        rows: list[tuple[np.ndarray, ...]] = []
+        while env.agents:
+            with torch.inference_mode():
+                mean = self.actor(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+            actions = clip_actions(mean + self.noise.sample(len(mean)))
+            batch = env.step_arrays(actions)
+            reward = (batch.reward * scale).astype(np.float32)
+            rows.append((obs, actions, reward, batch.next_obs, batch.terminated.astype(np.float32)))
+            log.record(batch.slots, batch)
+            obs = env.live_obs
+        columns = [np.concatenate(parts) for parts in zip(*rows, strict=True)]
+        return Rollout(*columns, steps=len(rows), stats=log, wall_s=time.perf_counter() - start)
+
+
+class DistributedTrainer(Trainer):
+    """The Trainer's loop and run directory, with episodes driven by Ray rollout workers."""
+
+    def __init__(self, config: TrainConfig, out: Path, ray_address: str | None = None) -> None:
+        super().__init__(config, out)  # TrainConfig.validate refuses multi-ddpg with workers
+        self.ray_address = ray_address
+        self.workers: list[Any] = []
+        self.pending: dict[Any, Any] = {}  # episode under way -> its worker
+        self.started = 0  # episodes handed out so far (the next one's seed)
+
+    def run(self, on_episode=None) -> list[dict[str, Any]]:
+        ray = start_ray(self.ray_address, self.config.workers)
+        try:
+            remote = ray.remote(num_cpus=1)(RolloutWorker)
+            self.workers = [remote.remote(self.config, k) for k in range(self.config.workers)]
+            self.started = self.episode
+            return super().run(on_episode)
+        finally:
+            ray.shutdown()  # ends this run's workers (a cluster keeps running)
+
+    def run_episode(self) -> dict[str, Any] | None:
+        """The next episode any worker finishes, stored and learnt from; None if stopped."""
+        import ray
+
+        learner = self.learner
+        assert isinstance(learner, DDPGLearner)
+        busy = set(self.pending.values())
+        for worker in self.workers:
+            if worker not in busy and self.started < self.config.episodes:
+                self._start(worker)
+        done: list[Any] = []
+        while not done:
+            if self.stop_requested:
+                return None
+            done, _ = ray.wait(list(self.pending), num_returns=1, timeout=WAIT_S)
+        self.pending.pop(done[0])
+        rollout = fetch(ray, done[0])
+        updates_before = learner.updates
+        learner.observe(rollout.obs, rollout.act, rollout.rew, rollout.next_obs, rollout.terminated)
+        learner.noise.steps += rollout.steps  # env steps of all workers: the exploration decay
+        per_step = self.config.updates_per_step
+        learner.update(len(rollout.obs) if per_step is None else per_step * rollout.steps)
+        return episode_row(
+            self.episode, rollout.stats, rollout.wall_s, learner.updates - updates_before, self.speed_limit
+        )
+
+    def _start(self, worker: Any) -> None:
+        learner = self.learner
+        assert isinstance(learner, DDPGLearner)
+        weights = {name: value.detach().clone() for name, value in learner.actor.state_dict().items()}
+        seed = episode_seed(self.config.seed, self.started)
+        self.pending[worker.episode.remote(weights, seed, learner.noise.steps)] = worker
+        self.started += 1
+
+
+def start_ray(address: str | None, workers: int) -> Any:
+    """Ray, local (as many CPUs as workers at least) or the cluster at `address`."""
+    try:
+        import ray
+    except ImportError:
+        raise BehaveError(INSTALL_HINT) from None
+    if address is not None:
+        check_reachable(address)
+    options: dict[str, Any] = {"include_dashboard": False, "logging_level": logging.WARNING}
+    if address is None:
+        options |= {"num_cpus": max(workers, os.cpu_count() or 1), "object_store_memory": OBJECT_STORE_BYTES}
+    try:
+        ray.init(address=address, **options)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        raise BehaveError(f"cannot start or join Ray at {address or 'this machine'}: {exc}") from None
+    return ray
+
+
+def check_reachable(address: str) -> None:
+    """A `host:port` that nothing answers on is refused at once (Ray itself retries for minutes)."""
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit() or "://" in address:
+        return  # "auto", ray://...: Ray's own forms, left to Ray
+    try:
+        socket.create_connection((host, int(port)), timeout=CONNECT_S).close()
+    except OSError as exc:
+        raise BehaveError(f"no Ray cluster answers at {address} ({exc.strerror or exc})") from None
+
+
+def fetch(ray: Any, ref: Any) -> Rollout:
+    """A worker's episode; a worker's BehaveError comes back as itself, one clear line."""
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayTaskError as exc:
+        cause = exc.cause
+        if isinstance(cause, BehaveError):
+            raise BehaveError(str(cause)) from None
+        raise
