@@ -127,6 +127,14 @@ def take_rows(value, mask: np.ndarray):
     return value[mask]
 
 
+def lane_leads_on(lane_ends: np.ndarray, best_end: np.ndarray, lane_pos: np.ndarray) -> np.ndarray:
+    """Metres each of the own/fast/slow lanes leads on; a lane that goes as far as the edge's best
+    lane (the route itself ends there, or the road goes on) counts as leading on for ever: the end
+    of a route is not a lane that ends."""
+    ending = lane_ends < best_end[:, None] - LANE_END_MARGIN
+    return np.where(ending, lane_ends - lane_pos[:, None], np.inf)
+
+
 class Fleet:
     """State and stepping of N learned agents (row i = `ids[i]`), vectorised."""
 
@@ -287,7 +295,7 @@ class Fleet:
             lane_width=g.lane_width[frame.lane_row],
             lane_number=number,
             lanes=count,
-            lane_leads_on=r.lane_ends - readings.lane_pos[:, None],
+            lane_leads_on=lane_leads_on(r.lane_ends, r.best_end, readings.lane_pos),
             behaviour_id=r.behaviour_id,
             # SUMO's lane indices and posLat grow towards the fast side in both kinds of net; the
             # world frame's left is the fast side only in keep-right nets

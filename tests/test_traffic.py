@@ -273,3 +273,13 @@ def test_the_fast_side_is_the_higher_lane_index_in_right_and_left_hand_nets(tmp_
     gap = obs[0, TRAFFIC_SLICES["gap"]]
     assert gap[2] == 0.0  # fast-side leader alongside
     assert gap[4] == 1.0 and gap[5] == 1.0  # nobody in the slow-side lane
+
+
+def test_the_end_of_a_route_is_not_a_lane_that_ends():
+    from behaviors.control import lane_leads_on
+
+    # own lane ends 300 m before the edge's best lane (an exit); the fast lane goes as far as the best
+    ends = np.array([[400.0, 700.0, 0.0], [700.0, 700.0, 700.0]])
+    out = lane_leads_on(ends, np.array([700.0, 700.0]), np.array([100.0, 100.0]))
+    assert out[0, 0] == 300.0 and np.isinf(out[0, 1]) and out[0, 2] < 0  # missing lane: none
+    assert np.isinf(out[1]).all()  # every lane stops where the route stops: nothing ends
