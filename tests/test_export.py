@@ -184,7 +184,7 @@ def test_unwritable_output_dir_is_refused(run: Path, tmp_path: Path, monkeypatch
             raise PermissionError(13, "Permission denied")
 
         monkeypatch.setattr("behaviors.files.tempfile.mkdtemp", refuse)
-    with pytest.raises(BehaveError, match="not writable|Permission denied"):
+    with pytest.raises(BehaveError, match=r"not writable|Permission denied"):
         export_fcd(run / "run.xml", "ns2", net=None, out=locked / "t.tcl")
     assert not list(locked.iterdir())
 
