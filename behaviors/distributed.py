@@ -85,8 +85,8 @@ class RolloutWorker:
             rows.append((obs, actions, reward, batch.next_obs, batch.terminated.astype(np.float32)))
             log.record(batch.slots, batch)
             obs = env.live_obs
-        columns = [np.concatenate(parts) for parts in zip(*rows, strict=True)]
-        return Rollout(*columns, steps=len(rows), stats=log, wall_s=time.perf_counter() - start)
+        obs_, act, rew, next_obs, terminated = (np.concatenate(parts) for parts in zip(*rows, strict=True))
+        return Rollout(obs_, act, rew, next_obs, terminated, len(rows), log, time.perf_counter() - start)
 
 
 class DistributedTrainer(Trainer):

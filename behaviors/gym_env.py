@@ -12,7 +12,7 @@ per process: close an env before another one resets (or use one process per env)
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -32,7 +32,7 @@ RESET_TRIES = 10
 class TrafficGymEnv(gymnasium.Env):
     """One keeper or overtaker among SUMO's cars on the training roads (or the ring)."""
 
-    metadata: ClassVar[dict] = {"render_modes": list(RENDER_MODES), "render_fps": 5}
+    metadata: dict[str, Any] = {"render_modes": list(RENDER_MODES), "render_fps": 5}  # noqa: RUF012 (gymnasium's type)
 
     def __init__(
         self,
@@ -98,4 +98,4 @@ def observation(row: np.ndarray) -> np.ndarray:
     return np.array(row, np.float32)
 
 
-gymnasium.register(id=ENV_ID, entry_point=TrafficGymEnv)
+gymnasium.register(id=ENV_ID, entry_point=f"{__name__}:TrafficGymEnv")
