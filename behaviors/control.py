@@ -411,6 +411,9 @@ class Fleet:
                     actions, r.speed, r.lateral_speed, f.offset, f.half_width, f.speed_limit,
                     self.dt, self.car, self.lateral, 1.0, r.side_limit, r.speed_cap,
                 )  # fmt: skip
+                # a junction's internal edge holds only the lanes of some connections, not the
+                # carriageway: the move stays clamped to it, but leaving it is not off the road
+                result = replace(result, off_track=result.off_track & f.on_normal_edge)
             else:
                 result = actuate(
                     actions, r.speed, r.angle, f.offset, f.half_width, f.curvature, f.speed_limit,

@@ -283,3 +283,26 @@ def test_the_end_of_a_route_is_not_a_lane_that_ends():
     out = lane_leads_on(ends, np.array([700.0, 700.0]), np.array([100.0, 100.0]))
     assert out[0, 0] == 300.0 and np.isinf(out[0, 1]) and out[0, 2] < 0  # missing lane: none
     assert np.isinf(out[1]).all()  # every lane stops where the route stops: nothing ends
+
+
+def test_leaving_a_junctions_internal_lane_sideways_is_not_off_the_road(tmp_path):
+    """Internal edges hold some connections' lanes, not the carriageway (the motorway's lane drop
+    counted agents off-track there)."""
+    net = exit_net(tmp_path)
+    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), driver="traffic")
+    options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
+    with SumoSim(options) as sim:
+        sim.add_route("main", ["A", "B"])
+        sim.add_vehicle("agent", "main", "behave_keeper", lane=2, pos=770.0, speed=20.0)
+        sim.step()
+        sim.take_control(["agent"])
+        fleet.add(["agent"], np.array([20.0]), np.array([0.0]), np.array([0.8]))
+        inside = []
+        for _ in range(20):
+            fleet.sense(sim, sim.read_vehicles(), True)
+            frame = fleet.rows.frame
+            result = fleet.act(sim, np.array([[1.0, 0.3, 0.0]], np.float32))  # hard towards the edge
+            if not frame.on_normal_edge[0]:
+                inside.append(bool(result.off_track[0]))
+            sim.step()
+    assert inside and not any(inside)
