@@ -16,7 +16,7 @@ import sys
 import xml.etree.ElementTree as ET
 from functools import cache
 from pathlib import Path
-from typing import IO, TYPE_CHECKING
+from typing import TYPE_CHECKING
 from xml.sax.saxutils import quoteattr
 
 from behaviors.errors import BehaveError
@@ -25,6 +25,7 @@ from behaviors.sumo_home import sumo_home, sumo_tool
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
+    from io import BufferedIOBase
 
     import pandas as pd
     import xmlschema
@@ -34,10 +35,10 @@ FCD_SUFFIXES = (".xml", ".csv", ".parquet")
 # only logged as an error while SUMO carries on with exit code 0.
 # `distance` is SUMO's linear referencing (kilometrage of the edges, else the position on the
 # edge); `odometer` is the distance driven since insertion.
-FCD_ATTRIBUTES = ("x", "y", "angle", "type", "speed", "pos", "lane", "posLat")
+FCD_ATTRIBUTES: tuple[str, ...] = ("x", "y", "angle", "type", "speed", "pos", "lane", "posLat")
 FCD_ATTRIBUTES += ("acceleration", "distance", "odometer")
 TEXT_COLUMNS = ("id", "type", "lane")
-COLUMNS = ("time", "id", "x", "y", "angle", "type", "speed", "pos", "lane", "posLat")
+COLUMNS: tuple[str, ...] = ("time", "id", "x", "y", "angle", "type", "speed", "pos", "lane", "posLat")
 COLUMNS += ("acceleration", "distance", "odometer")
 GEO_COLUMNS = tuple({"x": "lon", "y": "lat"}.get(c, c) for c in COLUMNS)
 EXPORT_FORMATS = ("ns2", "omnet", "gpx", "kml", "ipg")
@@ -360,8 +361,8 @@ def export_fcd(fcd: Path, fmt: str, *, net: Path | None, out: Path) -> list[Path
     projection = _projection_needed(fcd, fmt, net)
     if not out.parent.is_dir():
         raise BehaveError(f"output directory does not exist: {out.parent}")
-    for path in _output_names(fmt, out.name).values():
-        check_output_path(out.with_name(path))
+    for name in _output_names(fmt, out.name).values():
+        check_output_path(out.with_name(name))
     work = temp_dir(out)
     try:
         source = _traceable_fcd(fcd, source_format, work / "input.fcd.xml", net, projection)
@@ -394,7 +395,7 @@ def _projection_needed(fcd: Path, fmt: str, net: Path | None) -> str | None:
     return "to_geo"
 
 
-def open_net(net: Path) -> IO[bytes]:
+def open_net(net: Path) -> BufferedIOBase:
     """A SUMO net file for reading, gzip-compressed (.net.xml.gz) or not."""
     with open(net, "rb") as f:
         compressed = f.read(2) == b"\x1f\x8b"

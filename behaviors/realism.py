@@ -443,7 +443,11 @@ METRICS = (
     Metric("no_progress_per_agent_hour", "agents removed without progress per agent-hour", "0"),
     Metric("agents_standing", f"agents that stood still >= {STANDSTILL_REPORTED_S:.0f} s"),
 )
-LOSS_KEYS = ("collisions_per_agent_hour", "off_tracks_per_agent_hour", "no_progress_per_agent_hour")
+LOSS_KEYS: tuple[str, ...] = (
+    "collisions_per_agent_hour",
+    "off_tracks_per_agent_hour",
+    "no_progress_per_agent_hour",
+)
 LOSS_KEYS += ("agents_standing",)
 
 

@@ -230,27 +230,14 @@ def write_vtypes(path: Path) -> None:
         "lcModel": "SL2015",
     }
     root = ET.Element("additional")
-    ET.SubElement(root, "vType", id="behave_keeper", color="0,200,0", **agent)
-    ET.SubElement(root, "vType", id="behave_overtaker", color="230,120,0", **agent)
+    # attributes as one dict: typeshed's SubElement would match a `**dict` to its `attrib` parameter too
+    ET.SubElement(root, "vType", {"id": "behave_keeper", "color": "0,200,0", **agent})
+    ET.SubElement(root, "vType", {"id": "behave_overtaker", "color": "230,120,0", **agent})
+    passive = {"maxSpeed": "20", "speedFactor": "1", "speedDev": "0", "sigma": "0"}
+    ET.SubElement(root, "vType", {"id": "behave_passive", "color": "0,0,255", **passive, **sumo_driven})
+    background = {"sigma": "0.5", "speedFactor": "norm(1,0.1)"}
     ET.SubElement(
-        root,
-        "vType",
-        id="behave_passive",
-        color="0,0,255",
-        maxSpeed="20",
-        speedFactor="1",
-        speedDev="0",
-        sigma="0",
-        **sumo_driven,
-    )
-    ET.SubElement(
-        root,
-        "vType",
-        id="behave_background",
-        color="150,150,150",
-        sigma="0.5",
-        speedFactor="norm(1,0.1)",
-        **sumo_driven,
+        root, "vType", {"id": "behave_background", "color": "150,150,150", **background, **sumo_driven}
     )
     write_xml(root, path)
 
