@@ -58,7 +58,7 @@ BACKGROUND_TYPE = "behave_background"
 CAR_FOOTPRINT = 15.0
 """Metres of lane one car needs (length + gaps at speed) when checking what a net can hold."""
 PRETRAINED = Path(__file__).parent / "pretrained"
-DEFAULT_POLICY = PRETRAINED / "multi.pt"
+DEFAULT_POLICY = PRETRAINED / "traffic.pt"
 
 
 @dataclass(frozen=True)
@@ -265,7 +265,7 @@ class PopulateSummary:
         self.longest_standstill_s = max(standstills, default=0.0)
 
 
-END_REASONS = ("arrived", "collision", "off_track", "no_progress", "still_driving")
+END_REASONS: tuple[str, ...] = ("arrived", "collision", "off_track", "no_progress", "still_driving")
 """How an agent's run ends: at the end of its route, crashed, off the carriageway, taken out by
 SUMO without arriving (stuck, no progress), or still on the road when the run ends."""
 STANDSTILL_SPEED = 0.1

@@ -45,6 +45,13 @@ def cell(table: pd.DataFrame, key: str, group: str) -> float:
     return float(value)
 
 
+def ratio(over: float, under: float) -> float:
+    """over / under; inf when only `over` is positive (keepers that passed nobody)."""
+    if under > 0:
+        return over / under
+    return math.inf if over > 0 else math.nan
+
+
 def worst(table: pd.DataFrame, key: str) -> float:
     """The larger of the two groups' values (nan where neither group has one)."""
     known = [v for v in (cell(table, key, g) for g in (KEEPERS, OVERTAKERS)) if not math.isnan(v)]
@@ -65,7 +72,7 @@ BARS = (
     Bar("overtakers: passes made on the left", ">= 90%",
         lambda t, f: cell(t, "passes_overtaking_side", OVERTAKERS), lambda v: v >= 0.9),
     Bar("overtakers / keepers: passes per km", ">= 2",
-        lambda t, f: cell(t, "passes_per_km", OVERTAKERS) / max(cell(t, "passes_per_km", KEEPERS), 1e-9),
+        lambda t, f: ratio(cell(t, "passes_per_km", OVERTAKERS), cell(t, "passes_per_km", KEEPERS)),
         lambda v: v >= 2.0),
     Bar("overtakers / keepers: mean speed", ">= 1.05",
         lambda t, f: cell(t, "mean_speed", OVERTAKERS) / cell(t, "mean_speed", KEEPERS), lambda v: v >= 1.05),
@@ -101,6 +108,8 @@ def run(policy: Path, setup: dict, seed: int, duration: float, fcd: Path, shield
 def fmt(value: float, threshold: str) -> str:
     if math.isnan(value):
         return "-"
+    if math.isinf(value):
+        return "inf"
     return f"{100 * value:.1f}%" if threshold.endswith("%") else f"{value:.2f}"
 
 

@@ -21,7 +21,7 @@ DEFAULTS = SimpleNamespace(
     step_length=0.2, seed=0, shield=True, precision="auto", share=0.0, overtaker_fraction=0.5,
 )  # fmt: skip
 """PopulateConfig's defaults, spelled out so that `--help` needs no torch (a test keeps them equal)."""
-DEFAULT_POLICY = Path(behaviors.__file__).parent / "pretrained" / "multi.pt"
+DEFAULT_POLICY = Path(behaviors.__file__).parent / "pretrained" / "traffic.pt"
 
 
 def populate_command(
