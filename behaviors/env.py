@@ -23,7 +23,7 @@ from behaviors.lanes import TRAFFIC_OBS_SIZE
 from behaviors.render import RENDER_MODES, check_render_mode, top_down
 from behaviors.rewards import (
     NO_PROGRESS_SECONDS,
-    RewardTerms,
+    StepTerms,
     race_positions,
     step_rewards,
 )
@@ -167,7 +167,7 @@ class StepBatch:
     slots: np.ndarray  # [n] agent slots, in the order of the actions given
     next_obs: np.ndarray  # [n, D] observation after the step (the last one for agents that left)
     reward: np.ndarray  # [n]
-    terms: RewardTerms
+    terms: StepTerms  # RewardTerms, or TrafficTerms for the traffic driver
     terminated: np.ndarray  # [n] collision, off-track or no progress: no bootstrap
     truncated: np.ndarray  # [n] time limit or end of route: bootstrap
     collided: np.ndarray
@@ -475,8 +475,9 @@ class BehaveEnv(ParallelEnv):
 
     def _follow_sumo(self, present: np.ndarray) -> np.ndarray:
         """Baseline: take the speeds SUMO chose (heading stays along the lane)."""
-        fleet = self.fleet
-        fleet.record_speed(self.sim.read_speeds(fleet.ids))
+        sim, fleet = self.sim, self.fleet
+        assert sim is not None
+        fleet.record_speed(sim.read_speeds(fleet.ids))
         speed = np.zeros(len(present))
         speed[present] = fleet.speed
         return speed

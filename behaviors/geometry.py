@@ -24,6 +24,7 @@ import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import astuple, dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -197,8 +198,8 @@ def read_net(path: Path) -> NetTables:
                 src, dst = elem.get("from"), elem.get("to")
                 if src in normal and dst in normal:
                     out.links.add((src, dst))
-                    lanes = (f"{src}_{elem.get('fromLane')}", f"{dst}_{elem.get('toLane')}")
-                    if all(lane in car_lane for lane in lanes) and allows_car(
+                    ends = (f"{src}_{elem.get('fromLane')}", f"{dst}_{elem.get('toLane')}")
+                    if all(lane in car_lane for lane in ends) and allows_car(
                         elem.get("allow"), elem.get("disallow")
                     ):
                         out.car_links.add((src, dst))
@@ -207,7 +208,8 @@ def read_net(path: Path) -> NetTables:
 
 
 def lane_spec(lane: ET.Element) -> LaneSpec:
-    shape = [tuple(map(float, point.split(",")[:2])) for point in lane.get("shape", "").split()]
+    points = [tuple(map(float, point.split(",")[:2])) for point in lane.get("shape", "").split()]
+    shape = cast("list[tuple[float, float]]", points)  # x,y of every point
     width = float(lane.get("width", DEFAULT_LANE_WIDTH))
     return (lane.get("id", ""), shape, width, float(lane.get("speed", 13.89)), float(lane.get("length", 0.0)))
 

@@ -20,6 +20,7 @@ also makes SUMO's sublane model work harder for everyone around them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -32,6 +33,18 @@ NO_PROGRESS_SPEED = 1.0
 NO_PROGRESS_SECONDS = 5.0
 
 TERM_NAMES = ("progress", "lane", "race", "collision", "off_track", "no_progress")
+
+
+class StepTerms(Protocol):
+    """What a step's reward terms offer, whichever reward made them (RewardTerms, TrafficTerms)."""
+
+    @property
+    def total(self) -> np.ndarray: ...
+
+    @property
+    def progress(self) -> np.ndarray: ...
+
+    def as_dict(self) -> dict[str, np.ndarray]: ...
 
 
 @dataclass(frozen=True)
