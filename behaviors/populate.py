@@ -388,18 +388,20 @@ class Population:
                 f"{int(lane_metres / CAR_FOOTPRINT)}"
             )
 
-    def start(self, fcd_tmp: Path) -> None:
+    def start(self, fcd_tmp: Path | None) -> None:
+        """Start SUMO writing FCD to `fcd_tmp` (None: no FCD, for benchmarks) and ask for the cars."""
         c, scenario = self.config, self.scenario
         vtypes = get_scenario("highway").vtypes
         routes = (c.routes,) if c.routes else ()
-        extra = ("--begin", "0", *fcd_options(fcd_tmp, geo=c.geo))
+        fcd = () if fcd_tmp is None else tuple(fcd_options(fcd_tmp, geo=c.geo))
+        extra = ("--begin", "0", *fcd)
         options = SimOptions(net=c.net, additional=(vtypes,), routes=routes, step_length=c.step_length,
                              seed=c.seed, extra=extra)  # fmt: skip
         if scenario is not None:  # the sumocfg's options, its files named again beside behave's
             options = replace(
                 options, additional=(*scenario.additional, vtypes), routes=(*scenario.routes, *routes),
                 lateral_resolution=scenario.lateral_resolution or LATERAL_RESOLUTION,
-                extra=("--configuration-file", str(scenario.path), *fcd_options(fcd_tmp, geo=c.geo)),
+                extra=("--configuration-file", str(scenario.path), *fcd),
             )  # fmt: skip
         self.sim = SumoSim(options)
         self.routes = RoutePool(self.graph, c.duration * 50.0, self.sim.add_route)

@@ -39,8 +39,6 @@ from rich.console import Console
 from behaviors.ddpg.checkpoint import load_checkpoint
 from behaviors.populate import POLICY_THREADS, PRETRAINED, PopulateConfig, Population, partial_path
 from behaviors.sensors import OBS_SIZE_WITH_ID
-from behaviors.sim import SimOptions, SumoSim
-from sumo_scenarios import get_scenario
 from sumo_scenarios.build import build_straight
 
 WARMUP_STEPS = 20
@@ -107,20 +105,6 @@ class Result:
         return self.ms_per_step / self.alone_ms if self.alone_ms > 0 else float("nan")
 
 
-class NoFcdPopulation(Population):
-    """A Population whose SUMO writes no FCD (the same start otherwise)."""
-
-    def start(self, fcd_tmp: Path) -> None:
-        c = self.config
-        self.sim = SumoSim(
-            SimOptions(net=c.net, additional=(get_scenario("highway").vtypes,), step_length=c.step_length,
-                       seed=c.seed, extra=("--begin", "0"))
-        )  # fmt: skip
-        self.insert("overtaker", c.overtakers)
-        self.insert("keeper", c.keepers)
-        self.insert("background", c.background)
-
-
 def pick_policy(agents: int, policy: Path | None) -> tuple[Path, int, int]:
     """(checkpoint, overtakers, keepers): half and half with a multi-behaviour policy, else all of
     the policy's own behaviour. Default: the bundled multi.pt, or lanekeeping.pt if that is missing."""
@@ -153,10 +137,10 @@ RunOutput = tuple[int, float, dict[str, float], dict[str, int]]
 
 
 def run_population(
-    population: Population, fcd: Path, steps: int, profiler: cProfile.Profile | None = None
+    population: Population, fcd: Path | None, steps: int, profiler: cProfile.Profile | None = None
 ) -> RunOutput:
-    """Warm up, then time `steps` whole steps; returns steps, seconds, phases and counters."""
-    population.start(partial_path(fcd))
+    """Warm up, then time `steps` whole steps (FCD to `fcd`, or none); steps, seconds, phases, counters."""
+    population.start(None if fcd is None else partial_path(fcd))
     try:
         for _ in range(WARMUP_STEPS):
             population.step()
@@ -220,8 +204,7 @@ def run_fresh(config: PopulateConfig, fcd: Path, steps: int, with_fcd: bool = Tr
 
 def _run_in_child(config: PopulateConfig, fcd: Path, steps: int, with_fcd: bool) -> RunOutput:
     torch.set_num_threads(POLICY_THREADS)  # as `behave populate` does
-    population = Population(config) if with_fcd else NoFcdPopulation(config)
-    return run_population(population, fcd, steps)
+    return run_population(Population(config), fcd if with_fcd else None, steps)
 
 
 def run_row(

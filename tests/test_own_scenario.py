@@ -21,7 +21,7 @@ from behaviors.errors import BehaveError
 from behaviors.export import fcd_options, read_fcd
 from behaviors.geometry import cache_path, load_geometry
 from behaviors.lanes import TRAFFIC_OBS_SIZE
-from behaviors.populate import config_from, populate
+from behaviors.populate import PRETRAINED, config_from, populate
 from behaviors.scenario_config import read_sumocfg, share_draw
 from behaviors.sim import COLLISION_OPTIONS, SimOptions, SumoSim
 from behaviors.sumo_home import sumo_binary
@@ -169,7 +169,10 @@ def bad_scenario_input(tmp: Path) -> list[tuple[dict, str]]:
             {"sumocfg": cfg, "share": 1.5, "policy": traffic_policy(tmp), "fcd": fcd},
             "share must be in [0, 1]",
         ),
-        ({"sumocfg": cfg, "share": 0.2, "fcd": fcd}, "needs a traffic-driver policy"),
+        (
+            {"sumocfg": cfg, "share": 0.2, "policy": PRETRAINED / "multi.pt", "fcd": fcd},
+            "needs a traffic-driver policy",
+        ),
     ]
 
 
