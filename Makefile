@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 
-.PHONY: setup run test lint bench learn-check pretrained paper realism clean
+.PHONY: setup run test typecheck lint bench learn-check pretrained paper realism clean
 
 setup: $(STAMP)
 
@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/pip install $(PIP_FLAGS) --upgrade pip
 	$(BIN)/pip install $(PIP_FLAGS) torch==2.13.0
 	$(BIN)/pip uninstall -y -q behave 2>/dev/null || true  # the distribution's former name
-	$(BIN)/pip install $(PIP_FLAGS) -e '.[dev,integrations]'
+	$(BIN)/pip install $(PIP_FLAGS) -e '.[dev,integrations,distributed]'
 	touch $(STAMP)
 
 run: $(STAMP)
@@ -25,6 +25,9 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
+
+typecheck: $(STAMP)
+	$(BIN)/mypy
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
