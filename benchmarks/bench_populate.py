@@ -37,7 +37,8 @@ from common import print_table, progress, write_csv
 from rich.console import Console
 
 from behaviors.ddpg.checkpoint import load_checkpoint
-from behaviors.populate import POLICY_THREADS, PRETRAINED, PopulateConfig, Population, partial_path
+from behaviors.lanes import TRAFFIC_OBS_SIZE
+from behaviors.populate import DEFAULT_POLICY, POLICY_THREADS, PopulateConfig, Population, partial_path
 from behaviors.sensors import OBS_SIZE_WITH_ID
 from sumo_scenarios.build import build_straight
 
@@ -45,8 +46,6 @@ WARMUP_STEPS = 20
 STEP_LENGTH = 0.2
 PHASES = ("read", "sensors", "shield", "policy", "actuation", "sumo")
 TARGET_RATIO_1000 = 1.3
-MULTI_POLICY = PRETRAINED / "multi.pt"
-LANEKEEPING_POLICY = PRETRAINED / "lanekeeping.pt"
 
 
 @dataclass(frozen=True)
@@ -107,11 +106,11 @@ class Result:
 
 def pick_policy(agents: int, policy: Path | None) -> tuple[Path, int, int]:
     """(checkpoint, overtakers, keepers): half and half with a multi-behaviour policy, else all of
-    the policy's own behaviour. Default: the bundled multi.pt, or lanekeeping.pt if that is missing."""
+    the policy's own behaviour. Default: populate's default (the bundled traffic.pt)."""
     if policy is None:
-        policy = MULTI_POLICY if MULTI_POLICY.is_file() else LANEKEEPING_POLICY
+        policy = DEFAULT_POLICY
     meta = load_checkpoint(policy).meta
-    if int(meta["obs_dim"]) == OBS_SIZE_WITH_ID:
+    if int(meta["obs_dim"]) in (OBS_SIZE_WITH_ID, TRAFFIC_OBS_SIZE):  # one network, both behaviours
         return policy, agents // 2, agents - agents // 2
     if meta.get("behaviour") == "overtaking":
         return policy, agents, 0
@@ -324,7 +323,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rounds", type=int, default=3, help="populate / SUMO-alone alternations")
     parser.add_argument("--length", type=float, default=30_000.0, help="highway length, metres")
-    parser.add_argument("--policy", type=Path, default=None, help="default: the bundled multi.pt")
+    parser.add_argument("--policy", type=Path, default=None, help="default: the bundled traffic.pt")
     parser.add_argument("--csv", type=Path, default=None, help="also write the table here")
     parser.add_argument("--profile", action="store_true", help="cProfile top-10 (tottime) of the largest row")
     args = parser.parse_args(argv)
