@@ -7,7 +7,7 @@ calling this never changes the global matplotlib state of the caller.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path
@@ -64,7 +64,7 @@ def plot_fcd(
     along = _along_column(df)
     for _, trace in df.groupby("id", sort=False):
         label, colour = BEHAVIOURS.get(str(trace["type"].iloc[0]), SUMO_CAR)
-        style = {"color": colour, "label": label}
+        style: dict[str, Any] = {"color": colour, "label": label}  # Line2D keywords
         style.update(AGENT_STYLE if colour != SUMO_CAR[1] else SUMO_CAR_STYLE)
         space.plot(trace["time"], trace[along], **style)
         lateral.plot(trace["time"], _lateral_lanes(trace, widths, lane_width), **style)
@@ -128,8 +128,8 @@ def _decorate(space: Axes, lateral: Axes, along: str, title: str, lanes: tuple[i
     edges = [index - 0.5 for index in range(first, last + 2)]  # half a lane off each centre
     for edge in edges:
         outer = edge in (edges[0], edges[-1])
-        style = {"linestyle": "-", "alpha": 0.8} if outer else {"linestyle": "--", "alpha": 0.5}
-        lateral.axhline(edge, color="black", linewidth=0.8, zorder=1, **style)
+        linestyle, alpha = ("-", 0.8) if outer else ("--", 0.5)
+        lateral.axhline(edge, color="black", linewidth=0.8, zorder=1, linestyle=linestyle, alpha=alpha)
     low, high = lateral.get_ylim()
     lateral.set_ylim(min(low, edges[0] - 0.15), max(high, edges[-1] + 0.15))
     lateral.set_yticks(range(first, last + 1), [f"lane {index}" for index in range(first, last + 1)])

@@ -44,10 +44,10 @@ from behaviors.sensors import OBSERVATION_LAYOUT
 
 ALGORITHMS = ("ps-ddpg", "ddpg", "multi-ddpg")
 REWARD_SCALES = {"paper": 0.01, "traffic": 0.1}
+"""Critic reward scale per driver: the paper's rewards are ~100 per step (km/h), the traffic ones ~1."""
 TRAFFIC_EXPLORATION = {"ou_theta": (0.15, 1.0, 1.0), "ou_sigma": (0.2, 0.1, 0.05)}
 """The traffic driver's steer sets a lateral speed: a lane change needs steer held for about 3 s,
 so its steer noise is correlated over ~7 steps (theta 0.15, stationary std 0.38) instead of ~2."""
-"""Critic reward scale per driver: the paper's rewards are ~100 per step (km/h), the traffic ones ~1."""
 STATE_VERSION = 2
 _LEARNER = DDPGConfig()
 
@@ -131,7 +131,7 @@ class TrainConfig:
             f.name: getattr(self, f.name) for f in dataclasses.fields(DDPGConfig) if hasattr(self, f.name)
         }
         shared["hidden"] = tuple(self.hidden)  # JSON round trips turn it into a list
-        exploration = TRAFFIC_EXPLORATION if self.driver == "traffic" else {}
+        exploration: dict[str, Any] = TRAFFIC_EXPLORATION if self.driver == "traffic" else {}
         return dataclasses.replace(_LEARNER, **shared, **exploration, batched=self.batched_updates)
 
     def to_json(self) -> str:
