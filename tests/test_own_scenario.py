@@ -187,7 +187,7 @@ def test_the_cli_says_one_line_after_its_set_up_lines_without_traceback(tmp_path
     cfg = roads_scenario(tmp_path, roads=1, end=30.0)
     out = subprocess.run(
         [sys.executable, "-m", "behaviors.cli", "populate", "--sumocfg", str(cfg), "--share", "0.2",
-         "--fcd", str(tmp_path / "o.xml")],
+         "--policy", str(PRETRAINED / "multi.pt"), "--fcd", str(tmp_path / "o.xml")],
         capture_output=True, text=True,
     )  # fmt: skip
     lines = out.stderr.strip().splitlines()

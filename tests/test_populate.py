@@ -14,6 +14,7 @@ from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.ddpg.networks import Actor
 from behaviors.errors import BehaveError
 from behaviors.export import read_fcd, validate_fcd_xml
+from behaviors.lanes import TRAFFIC_OBS_SIZE
 from behaviors.populate import (
     BFLOAT16_MIN_BATCH,
     DEFAULT_POLICY,
@@ -195,7 +196,10 @@ def test_bundled_policies_load_and_match_their_behaviours():
     for name, obs_dim in (("lanekeeping", 65), ("overtaking", 65), ("multi", 66)):
         meta = load_checkpoint(PRETRAINED / f"{name}.pt").meta
         assert meta["obs_dim"] == obs_dim and meta["behaviour"] == name
-    assert (PRETRAINED / "MODEL_CARD.md").read_text().count("## ") == 3
+    traffic = load_checkpoint(PRETRAINED / "traffic.pt").meta  # populate's default
+    assert traffic["obs_dim"] == TRAFFIC_OBS_SIZE and traffic["behaviour"] == "multi"
+    assert traffic["observation_layout"].startswith("traffic:")
+    assert (PRETRAINED / "MODEL_CARD.md").read_text().count("\n## ") == 4
 
 
 def test_own_routes_file_brings_sumo_traffic(tmp_path, multi_policy):
