@@ -44,6 +44,33 @@ class Actuation:
     lateral_speed: np.ndarray | None = None  # [N] m/s towards the fast side (traffic model only)
 
 
+def longitudinal(
+    actions: np.ndarray,
+    speed: np.ndarray,
+    speed_limit: np.ndarray,
+    dt: float,
+    car: CarModel,
+    speed_cap: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """New speed from accel and brake, within [0, limit] and under `speed_cap`; and where the cap cut it."""
+    accel = np.clip(actions[:, 1], 0.0, 1.0)
+    brake = np.clip(actions[:, 2], 0.0, 1.0)
+    new_speed = np.clip(speed + (car.max_accel * accel - car.max_brake * brake) * dt, 0.0, speed_limit)
+    if speed_cap is None:
+        return new_speed, np.zeros(len(new_speed), bool)
+    speed_cut = new_speed > speed_cap
+    return np.where(speed_cut, np.maximum(speed_cap, 0.0), new_speed), speed_cut
+
+
+def clamp_to_road(
+    offset: np.ndarray, move: np.ndarray, half_width: np.ndarray, car: CarModel
+) -> tuple[np.ndarray, np.ndarray]:
+    """The sideways move cut to the room left on the carriageway, and where it would have left it."""
+    room = half_width - car.width / 2
+    target = offset + move
+    return np.clip(target, -room, room) - offset, np.abs(target) > room
+
+
 def actuate(
     actions: np.ndarray,
     speed: np.ndarray,
@@ -66,13 +93,7 @@ def actuate(
     a car whose sideways move was cut has its heading turned back to match the move it makes.
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
-    accel = np.clip(actions[:, 1], 0.0, 1.0)
-    brake = np.clip(actions[:, 2], 0.0, 1.0)
-    new_speed = np.clip(speed + (car.max_accel * accel - car.max_brake * brake) * dt, 0.0, speed_limit)
-    speed_cut = np.zeros(len(new_speed), bool)
-    if speed_cap is not None:
-        speed_cut = new_speed > speed_cap
-        new_speed = np.where(speed_cut, np.maximum(speed_cap, 0.0), new_speed)
+    new_speed, speed_cut = longitudinal(actions, speed, speed_limit, dt, car, speed_cap)
     yaw_rate = steer * np.minimum(
         new_speed * np.tan(car.max_steer) / car.wheelbase,
         car.max_lateral_accel / np.maximum(new_speed, 1.0),
@@ -88,10 +109,7 @@ def actuate(
         travel = np.maximum(new_speed * dt, 1e-9)
         new_angle = np.where(side_cut, np.arcsin(np.clip(limited / travel, -1.0, 1.0)), new_angle)
         move = limited
-    room = half_width - car.width / 2
-    target = offset + move
-    off_track = np.abs(target) > room
-    move = np.clip(target, -room, room) - offset
+    move, off_track = clamp_to_road(offset, move, half_width, car)
     lane_speed = np.maximum(new_speed * np.cos(new_angle), 0.0)
     return Actuation(new_speed, new_angle, lane_speed, move, off_track, side_cut, speed_cut)
 
@@ -122,38 +140,28 @@ def actuate_lanes(
     dt: float,
     car: CarModel,
     lateral: LaneDriving,
-    fast_side_sign: float = 1.0,
     side_limit: np.ndarray | None = None,
     speed_cap: np.ndarray | None = None,
 ) -> Actuation:
     """One control step of the traffic model for all agents.
 
-    `lateral_speed` is + towards the fast side; `offset`, `side_limit` and the returned
-    `lateral_move` are geometric (+ = left), as in `actuate`. `angle` in the result is the
-    direction of travel relative to the lane, atan(lateral speed / speed), fast side +.
+    Everything sideways is signed as SUMO's lane indices and `changeSublane` are: + towards
+    the fast side (the left in keep-right nets, the right in left-hand ones, which SUMO
+    mirrors). `angle` in the result is atan(lateral speed / speed).
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
-    accel = np.clip(actions[:, 1], 0.0, 1.0)
-    brake = np.clip(actions[:, 2], 0.0, 1.0)
-    new_speed = np.clip(speed + (car.max_accel * accel - car.max_brake * brake) * dt, 0.0, speed_limit)
-    speed_cut = np.zeros(len(new_speed), bool)
-    if speed_cap is not None:
-        speed_cut = new_speed > speed_cap
-        new_speed = np.where(speed_cut, np.maximum(speed_cap, 0.0), new_speed)
+    new_speed, speed_cut = longitudinal(actions, speed, speed_limit, dt, car, speed_cap)
     reach = np.minimum(lateral.max_lateral_speed, lateral.max_slip * new_speed)
     wanted = steer * reach
     step = lateral.max_lateral_accel * dt
     new_lateral = np.clip(lateral_speed + np.clip(wanted - lateral_speed, -step, step), -reach, reach)
-    move = new_lateral * dt * fast_side_sign
+    move = new_lateral * dt
     side_cut = np.zeros(len(move), bool)
     if side_limit is not None:
         limited = np.clip(move, -side_limit[:, 1], side_limit[:, 0])
         side_cut = limited != move
         move = limited
-        new_lateral = np.where(side_cut, move / dt * fast_side_sign, new_lateral)
-    room = half_width - car.width / 2
-    target = offset + move
-    off_track = np.abs(target) > room
-    move = np.clip(target, -room, room) - offset
+        new_lateral = np.where(side_cut, move / dt, new_lateral)
+    move, off_track = clamp_to_road(offset, move, half_width, car)
     angle = np.arctan2(new_lateral, np.maximum(new_speed, 0.1))
     return Actuation(new_speed, angle, new_speed, move, off_track, side_cut, speed_cut, new_lateral)

@@ -409,7 +409,7 @@ class Fleet:
             if self.driver == "traffic":
                 result = actuate_lanes(
                     actions, r.speed, r.lateral_speed, f.offset, f.half_width, f.speed_limit,
-                    self.dt, self.car, self.lateral, 1.0, r.side_limit, r.speed_cap,
+                    self.dt, self.car, self.lateral, r.side_limit, r.speed_cap,
                 )  # fmt: skip
                 # a junction's internal edge holds only the lanes of some connections, not the
                 # carriageway: the move stays clamped to it, but leaving it is not off the road
