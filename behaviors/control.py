@@ -281,8 +281,9 @@ class Fleet:
         r.lane_changed = (r.lane_number >= 0) & (number != r.lane_number) & (count == r.lane_count) & normal
         r.lane_number = np.where(normal, number, r.lane_number)
         r.lane_count = np.where(normal, count, r.lane_count)
+        speeds = sim.read_speeds(vehicles.ids)  # every vehicle's, once: neighbours and handed agents
         self._refresh_lane_ends(sim, readings)
-        self._hand_over(sim, readings, count, normal)
+        self._hand_over(sim, readings, count, normal, speeds[rows])
         agents = LaneAgents(
             front=vehicles.position[rows],
             road_heading=frame.heading - r.angle,
@@ -301,7 +302,6 @@ class Fleet:
             # world frame's left is the fast side only in keep-right nets
             fast_side_sign=-1.0 if g.lefthand else 1.0,
         )
-        speeds = sim.read_speeds(vehicles.ids)
         speeds[rows] = r.speed
         r.around = around = lane_surroundings(agents, vehicles.position, speeds, rows)
         return observe_lanes(agents, around)
@@ -310,10 +310,13 @@ class Fleet:
         """Where the own and neighbouring lanes stop leading on, asked of SUMO only when an agent
         entered a new lane (a few agents per step), kept in lane coordinates otherwise."""
         r = self.rows
-        for i, lane in enumerate(readings.lane_id):
-            if lane == r.lane_id[i]:
-                continue
-            r.lane_id[i] = lane
+        entered = [
+            i
+            for i, (now, before) in enumerate(zip(readings.lane_id, r.lane_id, strict=True))
+            if now != before
+        ]
+        for i in entered:
+            lane = r.lane_id[i] = readings.lane_id[i]
             if lane.startswith(":"):  # a junction leads on to the lane SUMO routes it to
                 r.lane_ends[i] = readings.lane_pos[i] + JUNCTION_LEADS_ON
                 continue
@@ -324,7 +327,12 @@ class Fleet:
             r.best_end[i] = max(ahead.values(), default=0.0)
 
     def _hand_over(
-        self, sim: SumoSim, readings: AgentReadings, lanes: np.ndarray, normal: np.ndarray
+        self,
+        sim: SumoSim,
+        readings: AgentReadings,
+        lanes: np.ndarray,
+        normal: np.ndarray,
+        sumo_speed: np.ndarray,
     ) -> None:
         """SUMO's strategic layer takes an agent whose lane stops leading on soon while another lane
         of its edge goes on (an exit or a lane drop ahead), or that is on a one-lane road, and
@@ -357,9 +365,7 @@ class Fleet:
             r.lateral_speed[take] = 0.0
             r.angle[take] = 0.0
         r.handed = (r.handed | give) & ~take
-        if r.handed.any():  # SUMO drives them: their speed is SUMO's
-            handed = np.flatnonzero(r.handed)
-            r.speed[handed] = sim.read_speeds([r.ids[i] for i in handed])
+        r.speed = np.where(r.handed, sumo_speed, r.speed)  # SUMO drives them: their speed is SUMO's
 
     def _shield(self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray) -> None:
         """Side limits and speed caps for the next action; reads the speed of SUMO cars leading agents."""
