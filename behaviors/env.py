@@ -271,16 +271,19 @@ class BehaveEnv(ParallelEnv):
         self._update_progress(vehicles, self._live_slots)
         return self.live_obs
 
-    def step_arrays(self, actions: np.ndarray) -> StepBatch:
-        """Act for the live agents (rows in `live_slots` order) and advance SUMO one step."""
+    def _check_actions(self, actions: np.ndarray) -> SumoSim:
+        """The running simulation, if `actions` fit the live agents."""
         if self.sim is None or not self.agents:
             raise RuntimeError("step_arrays needs a running episode: call reset first")
         if actions.shape != (len(self.agents), 3):
             raise ValueError(f"expected actions of shape ({len(self.agents)}, 3), got {actions.shape}")
-        sim, fleet = self.sim, self.fleet
-        slots = self.live_slots
-        last_obs = self.live_obs
-        actuation = None if self.config.sumo_drives else fleet.act(sim, actions)
+        return self.sim
+
+    def _advance(self, sim: SumoSim, with_id: bool) -> tuple[set[str], VehicleState, np.ndarray, np.ndarray]:
+        """Step SUMO once after the agents acted, drop the agents SUMO no longer has and sense the
+        others: (contacts, vehicles, present [n], next observations [n, D]; an agent that left keeps
+        its last observation)."""
+        fleet = self.fleet
         with self.timer.phase("sumo"):
             sim.step()
         self.steps += 1
@@ -288,11 +291,18 @@ class BehaveEnv(ParallelEnv):
             contact = sim.collisions()
             vehicles = sim.read_vehicles()
         present = fleet.locate(vehicles) >= 0
-        next_obs = last_obs.copy()  # an agent that left keeps its last observation
-        if not present.all():
-            fleet.keep(present)
+        next_obs = self.live_obs.copy()
+        fleet.keep(present)
         if present.any():
-            next_obs[present] = fleet.sense(sim, vehicles, self.config.behaviour == "multi")
+            next_obs[present] = fleet.sense(sim, vehicles, with_id)
+        return contact, vehicles, present, next_obs
+
+    def step_arrays(self, actions: np.ndarray) -> StepBatch:
+        """Act for the live agents (rows in `live_slots` order) and advance SUMO one step."""
+        sim, fleet = self._check_actions(actions), self.fleet
+        slots = self.live_slots
+        actuation = None if self.config.sumo_drives else fleet.act(sim, actions)
+        contact, vehicles, present, next_obs = self._advance(sim, self.config.behaviour == "multi")
         self._update_progress(vehicles, slots[present])
         if actuation is None:
             speed, angle, off_track = (

@@ -168,11 +168,8 @@ class TrafficEnv(BehaveEnv):
 
     def step_arrays(self, actions: np.ndarray) -> StepBatch:
         """Act for the live agents (rows in `live_slots` order) and advance SUMO one step."""
-        if self.sim is None or not self.agents:
-            raise RuntimeError("step_arrays needs a running episode: call reset first")
-        if actions.shape != (len(self.agents), 3):
-            raise ValueError(f"expected actions of shape ({len(self.agents)}, 3), got {actions.shape}")
-        sim, fleet, dt = self.sim, self.fleet, self.config.step_length
+        sim = self._check_actions(actions)
+        fleet, dt = self.fleet, self.config.step_length
         slots = self._live_slots
         n = len(slots)
         assert fleet.rows.frame is not None
@@ -180,21 +177,12 @@ class TrafficEnv(BehaveEnv):
         before_speed, before_lateral = fleet.rows.speed.copy(), fleet.rows.lateral_speed.copy()
         actuation = fleet.act(sim, actions)
         assert actuation.lateral_speed is not None
-        with self.timer.phase("sumo"):
-            sim.step()
-        self.steps += 1
-        with self.timer.phase("read"):
-            contact = sim.collisions()
-            vehicles = sim.read_vehicles()
-        present = fleet.locate(vehicles) >= 0
-        next_obs = self.live_obs.copy()  # an agent that left keeps its last observation
-        fleet.keep(present)
+        contact, vehicles, present, next_obs = self._advance(sim, True)
         gap = np.full((n, 6), np.inf)
         other = np.full((n, 6), np.nan)
         deviation = np.zeros(n)
         changed = np.zeros(n, bool)
         if present.any():
-            next_obs[present] = fleet.sense(sim, vehicles, True)
             around, frame = fleet.rows.around, fleet.rows.frame
             assert around is not None and frame is not None
             gap[present], other[present] = around.gap, around.other_speed
