@@ -286,7 +286,8 @@ class Fleet:
         self._hand_over(sim, readings, count, normal, speeds[rows])
         agents = LaneAgents(
             front=vehicles.position[rows],
-            road_heading=frame.heading - r.angle,
+            lane_row=frame.lane_row,
+            shape_pos=readings.lane_pos * g.lane_length_scale[frame.lane_row],
             curvature=frame.curvature,
             speed=r.speed,
             lateral_speed=r.lateral_speed,
@@ -303,7 +304,7 @@ class Fleet:
             fast_side_sign=-1.0 if g.lefthand else 1.0,
         )
         speeds[rows] = r.speed
-        r.around = around = lane_surroundings(agents, vehicles.position, speeds, rows)
+        r.around = around = lane_surroundings(agents, vehicles.position, speeds, rows, g)
         return observe_lanes(agents, around)
 
     def _refresh_lane_ends(self, sim: SumoSim, readings: AgentReadings) -> None:

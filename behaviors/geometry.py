@@ -50,7 +50,7 @@ _LANE_GAP = 1.0e6
 CAR_CLASS = "passenger"
 """The SUMO vehicle class of behave's cars: only lanes (and connections) it may use are road."""
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 """Bumped whenever what the geometry cache holds changes: older caches are rebuilt."""
 
 CACHE_MIN_BYTES = 2_000_000
@@ -91,6 +91,7 @@ class RoadGeometry:
     axis_s: np.ndarray  # [P] concatenated vertex positions (lane base + arc length)
     axis_angle: np.ndarray  # [P] unwrapped tangent angle at each vertex
     axis_curvature: np.ndarray  # [P] curvature of the segment starting at vertex
+    axis_xy: np.ndarray  # [P, 2] the vertices themselves
     edges: dict[str, EdgeInfo]
     car_successors: dict[str, tuple[str, ...]] = field(default_factory=dict)
     """Normal edge -> the normal edges a passenger car may drive on to (car lanes, car connections)."""
@@ -122,6 +123,44 @@ class RoadGeometry:
         t = np.clip((s - self.axis_s[i]) / np.where(span > 0, span, 1.0), 0.0, 1.0)
         angle = self.axis_angle[i] + t * (self.axis_angle[i + 1] - self.axis_angle[i])
         return angle, self.axis_curvature[i]
+
+    @functools.cached_property
+    def _lane_vertices(self) -> tuple[np.ndarray, np.ndarray]:
+        """First and last vertex of each lane on the concatenated axis."""
+        first = np.searchsorted(self.axis_s, self.lane_base, side="left")
+        return first, np.append(first[1:], len(self.axis_s)) - 1
+
+    def lane_pose(
+        self, lane_rows: np.ndarray, shape_pos: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Where a lane's own centre line is at `shape_pos` metres along its shape, clamped to the lane.
+
+        SUMO places cars on the lane polyline itself, whose direction jumps at each vertex;
+        `road_axis` smooths those jumps (a heading for the paper's driver), which on a coarse
+        polyline is several degrees off the segment a car is on. Returns the point, the
+        segment's direction, the turn per metre into that segment (from the one before, else
+        the one after: what the lane does beyond its ends), the clamped position and the
+        shape's length.
+        """
+        first, last = self._lane_vertices
+        lo, hi = first[lane_rows], last[lane_rows]
+        length = self.axis_s[hi] - self.axis_s[lo]
+        pos = np.clip(shape_pos, 0.0, length)
+        s = self.axis_s[lo] + pos
+        i = np.clip(np.searchsorted(self.axis_s, s, side="right") - 1, lo, np.maximum(hi - 1, lo))
+        a, b = self.axis_xy[i], self.axis_xy[np.minimum(i + 1, hi)]
+        d = b - a
+        span = np.hypot(d[:, 0], d[:, 1])
+        t = np.clip((s - self.axis_s[i]) / np.maximum(span, 1e-9), 0.0, 1.0)
+        angle = np.arctan2(d[:, 1], d[:, 0])
+        # the turn between this segment and its neighbour, over the distance between their middles
+        j = np.where(i > lo, i - 1, np.minimum(i + 1, np.maximum(hi - 1, lo)))
+        e = self.axis_xy[np.minimum(j + 1, hi)] - self.axis_xy[j]
+        other = np.arctan2(e[:, 1], e[:, 0])
+        turn = np.where(j < i, wrap_angle(angle - other), wrap_angle(other - angle))
+        middles = (span + np.hypot(e[:, 0], e[:, 1])) / 2
+        curvature = np.where(j != i, turn / np.maximum(middles, 1e-9), 0.0)
+        return a + t[:, None] * d, angle, curvature, pos, length
 
     def candidates(self, points: np.ndarray, heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(point row, segment id) pairs: the border segments a track ray from each pose may hit.
@@ -262,7 +301,7 @@ def cache_path(net: Path) -> Path:
 
 LANE_TABLES = (
     *("lane_number", "lane_num_lanes", "lane_normal", "lane_width", "lane_speed", "lane_length_scale"),
-    *("lane_base", "axis_s", "axis_angle", "axis_curvature", "seg_a", "seg_b"),
+    *("lane_base", "axis_s", "axis_angle", "axis_curvature", "axis_xy", "seg_a", "seg_b"),
 )
 
 
@@ -440,6 +479,7 @@ def lane_axes(shapes: list[list[tuple[float, float]]], lengths: np.ndarray) -> d
         "axis_s": base[lane] + arc,
         "axis_angle": vertex,
         "axis_curvature": curvature,
+        "axis_xy": points,
     }
 
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from behaviors.geometry import RoadGeometry
 from behaviors.sensors import neighbours
 
 SPEED_SCALE = 40.0
@@ -71,7 +72,8 @@ class LaneAgents:
     """
 
     front: np.ndarray  # [N, 2] front bumper centre, metres (SUMO's position)
-    road_heading: np.ndarray  # [N] world angle of the road axis at the car, radians CCW from +x
+    lane_row: np.ndarray  # [N] the own lane's row in the RoadGeometry
+    shape_pos: np.ndarray  # [N] metres of the front along the own lane's shape
     curvature: np.ndarray  # [N] 1/m of the road axis, + = turning to the geometric left
     speed: np.ndarray  # [N] m/s along the road
     lateral_speed: np.ndarray  # [N] m/s, + = towards the fast side
@@ -129,8 +131,37 @@ def road_coordinates(
     return along, across
 
 
+def lane_coordinates(
+    geometry: RoadGeometry, lane_row: np.ndarray, shape_pos: np.ndarray, front: np.ndarray, offset: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(along, across) of world offsets from cars' fronts, in the frame of each car's own lane.
+
+    `along` runs along the lane's centre line from the car's front, `across` is the distance
+    from that line (+ geometric left). A lane is a polyline and SUMO places cars on it, so
+    the point is projected onto the polyline itself: a car in the same lane beyond a vertex
+    where the road turns 12 degrees stays in that lane. Beyond the lane's ends the road is
+    taken to go on with the end's curvature (the next edge is not known here).
+    """
+    target = front + offset
+    point, angle, _, _, _ = geometry.lane_pose(lane_row, shape_pos)
+    r = target - point
+    along = r[:, 0] * np.cos(angle) + r[:, 1] * np.sin(angle)
+    for _ in range(2):  # a projection step per vertex crossed; two cover neighbours within range
+        point, angle, _, _, _ = geometry.lane_pose(lane_row, shape_pos + along)
+        r = target - point
+        along = along + r[:, 0] * np.cos(angle) + r[:, 1] * np.sin(angle)
+    point, angle, curvature, pos, _ = geometry.lane_pose(lane_row, shape_pos + along)
+    r = target - point
+    ahead, across = road_coordinates(r[:, 0], r[:, 1], angle, curvature)
+    return pos - shape_pos + ahead, across
+
+
 def surroundings(
-    agents: LaneAgents, positions: np.ndarray, speeds: np.ndarray, agent_rows: np.ndarray
+    agents: LaneAgents,
+    positions: np.ndarray,
+    speeds: np.ndarray,
+    agent_rows: np.ndarray,
+    geometry: RoadGeometry,
 ) -> Surroundings:
     """Nearest leader and follower in the own, fast-side and slow-side lane of every agent.
 
@@ -143,11 +174,12 @@ def surroundings(
     other = np.full((n, 6), np.nan)
     q, m, dx, dy, _ = neighbours(agents.front, positions, GAP_RANGE + OTHER_LENGTH, exclude=agent_rows)
     if len(q):
-        along, across = road_coordinates(dx, dy, agents.road_heading[q], agents.curvature[q])
-        across = across * agents.fast_side_sign
-        width = agents.lane_width[q]
+        along, across = lane_coordinates(
+            geometry, agents.lane_row[q], agents.shape_pos[q], agents.front[q], np.stack([dx, dy], axis=1)
+        )
         # the other car's lateral place in own-lane widths, 0 = own lane centre
-        lane_units = (across + agents.lane_offset[q]) / width
+        width = agents.lane_width[q]
+        lane_units = across * agents.fast_side_sign / width
         half = OTHER_WIDTH / 2 / width
         for side, column in ((0, 0), (1, 2), (-1, 4)):
             overlaps = (lane_units + half > side - 0.5) & (lane_units - half < side + 0.5)

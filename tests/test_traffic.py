@@ -11,7 +11,7 @@ import pytest
 from behaviors.actuation import CarModel, LaneDriving, actuate_lanes
 from behaviors.control import Fleet
 from behaviors.env import make_env
-from behaviors.geometry import load_geometry
+from behaviors.geometry import RoadGeometry, build_geometry, load_geometry
 from behaviors.lanes import (
     GAP_RANGE,
     TRAFFIC_OBS_SIZE,
@@ -28,10 +28,36 @@ from behaviors.timing import PhaseTimer
 from sumo_scenarios import get_scenario
 
 
+def lanes_along(centre_line: list[tuple[float, float]], lanes: int = 3, width: float = 3.5) -> RoadGeometry:
+    """One edge of `lanes` lanes whose middle lane follows `centre_line` (lane 0 on the right)."""
+    line = np.asarray(centre_line, float)
+    d = np.diff(line, axis=0)
+    normal = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.hypot(d[:, 0], d[:, 1])[:, None]
+    vertex_normal = np.concatenate([normal[:1], normal[:-1] + normal[1:], normal[-1:]])
+    vertex_normal /= np.hypot(vertex_normal[:, 0], vertex_normal[:, 1])[:, None]
+    length = float(np.hypot(d[:, 0], d[:, 1]).sum())
+    specs = [
+        (
+            f"e_{k}",
+            [tuple(p) for p in line + (k - (lanes - 1) / 2) * width * vertex_normal],
+            width,
+            33.3,
+            length,
+        )
+        for k in range(lanes)
+    ]
+    return build_geometry([("e", specs, True)])
+
+
+STRAIGHT = lanes_along([(-500.0, 0.0), (500.0, 0.0)])
+"""Three 3.5 m lanes along +x; the middle one (lane 1) passes through the origin at 500 m."""
+
+
 def one_agent(**over) -> LaneAgents:
     base = dict(
         front=np.array([[0.0, 0.0]]),
-        road_heading=np.array([0.0]),
+        lane_row=np.array([STRAIGHT.lane_index["e_1"]]),
+        shape_pos=np.array([500.0]),
         curvature=np.array([0.0]),
         speed=np.array([30.0]),
         lateral_speed=np.array([0.0]),
@@ -67,7 +93,7 @@ def test_surroundings_find_leaders_and_followers_per_lane():
     # slow lane (right) 100 m ahead, and one far away
     positions = np.array([[0.0, 0.0], [45.0, 0.2], [-5.0, 3.5], [105.0, -3.5], [1000.0, 0.0]])
     speeds = np.array([30.0, 25.0, 35.0, 20.0, 10.0])
-    around = surroundings(agent, positions, speeds, np.array([0]))
+    around = surroundings(agent, positions, speeds, np.array([0]), STRAIGHT)
     gap, other = around.gap[0], around.other_speed[0]
     assert gap[0] == pytest.approx(40.0) and other[0] == 25.0  # leader: 45 m front to front - 5 m
     assert np.isinf(gap[1]) and np.isnan(other[1])  # nobody behind in the own lane
@@ -81,13 +107,55 @@ def test_surroundings_find_leaders_and_followers_per_lane():
 
 
 def test_a_car_astride_two_lanes_blocks_both_and_missing_lanes_are_walls():
-    agent = one_agent(lane_number=np.array([0]), lanes=np.array([2]))
+    road = lanes_along([(-500.0, 1.75), (500.0, 1.75)], lanes=2)  # lane 0's centre on y = 0
+    agent = one_agent(
+        lane_number=np.array([0]), lanes=np.array([2]), lane_row=np.array([road.lane_index["e_0"]])
+    )
     positions = np.array([[0.0, 0.0], [30.0, 1.75]])  # centred on the line to the fast lane
-    around = surroundings(agent, positions, np.array([30.0, 30.0]), np.array([0]))
+    around = surroundings(agent, positions, np.array([30.0, 30.0]), np.array([0]), road)
     assert around.gap[0, 0] == pytest.approx(25.0) and around.gap[0, 2] == pytest.approx(25.0)
     assert around.gap[0, 4] == 0.0 and around.gap[0, 5] == 0.0  # no lane on the slow side
     obs = observe_lanes(agent, around)
     assert obs[0, TRAFFIC_SLICES["lanes_slow_side"]][0] == 0.0
+
+
+def test_a_car_in_the_own_lane_beyond_a_bend_of_the_polyline_is_the_leader_not_a_neighbour():
+    # the bundled motorway's lanes turn 12.5 degrees at a vertex, 250 m apart: a smoothed road
+    # heading put a car 40 m ahead in the own lane 2.4 m to the side, and the agent saw no leader
+    kink = np.radians(12.5)
+    centre = [(0.0, 0.0), (250.0, 0.0), (250.0 + 250.0 * np.cos(kink), 250.0 * np.sin(kink))]
+    road = lanes_along(centre)
+    middle = road.lane_index["e_1"]
+    on_lane = lambda s, lane: road.lane_pose(np.array([road.lane_index[f"e_{lane}"]]), np.array([s]))[0][0]  # noqa: E731
+    agent = one_agent(
+        front=on_lane(220.0, 1)[None, :], lane_row=np.array([middle]), shape_pos=np.array([220.0])
+    )
+    positions = np.stack([on_lane(220.0, 1), on_lane(320.0, 1), on_lane(300.0, 0), on_lane(150.0, 2)])
+    around = surroundings(agent, positions, np.array([30.0, 20.0, 25.0, 35.0]), np.array([0]), road)
+    assert around.gap[0, 0] == pytest.approx(100.0 - 5.0, abs=0.5) and around.other_speed[0, 0] == 20.0
+    # in the next lanes, lane positions differ from the own lane's by the mitre at the vertex (0.4 m)
+    assert around.gap[0, 4] == pytest.approx(80.0 - 5.0, abs=1.0)  # slow lane, beyond the vertex
+    assert around.gap[0, 3] == pytest.approx(70.0 - 5.0, abs=1.0)  # fast lane, behind
+    assert np.isinf(around.gap[0, 2])
+
+
+def test_neighbours_beyond_the_end_of_a_curved_lane_stay_in_their_lanes():
+    radius, arc_end = 300.0, np.pi / 6  # a 157 m arc; the neighbours are 60 m past its end
+    phi = np.linspace(0.0, arc_end, 40)
+    road = lanes_along([(radius * np.sin(p), radius - radius * np.cos(p)) for p in phi])
+    agent_at = road.lane_pose(np.array([road.lane_index["e_1"]]), np.array([120.0]))[0][0]
+    agent = one_agent(
+        front=agent_at[None, :], lane_row=np.array([road.lane_index["e_1"]]), shape_pos=np.array([120.0])
+    )
+    ahead = arc_end + 60.0 / radius  # the road goes on on the same circle
+    same = [radius * np.sin(ahead), radius - radius * np.cos(ahead)]
+    outer = [(radius + 3.5) * np.sin(ahead), radius - (radius + 3.5) * np.cos(ahead)]
+    around = surroundings(
+        agent, np.array([agent_at, same, outer]), np.array([30.0, 20.0, 25.0]), np.array([0]), road
+    )
+    expected = radius * arc_end + 60.0 - 120.0 - 5.0
+    assert around.gap[0, 0] == pytest.approx(expected, abs=1.0)
+    assert around.gap[0, 4] == pytest.approx(expected, abs=1.5)  # the outer lane is lane 0 here
 
 
 def test_lateral_speed_follows_steer_within_the_acceleration_limit():
