@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 
-.PHONY: setup run test typecheck lint bench learn-check pretrained paper realism clean
+.PHONY: setup run test typecheck lint bench learn-check pretrained paper realism own-nets clean
 
 setup: $(STAMP)
 
@@ -45,6 +45,9 @@ pretrained: $(STAMP)
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/traffic_bars.py --seeds 0,1,2
+
+own-nets: $(STAMP)
+	$(BIN)/python benchmarks/own_nets_bars.py --seeds 0,1
 
 paper: $(STAMP)
 	$(BIN)/python benchmarks/paper.py --seed $(SEED)

@@ -1,0 +1,219 @@
+"""Issue 12's bars on motorway nets nobody here drew, with the shipped policy and the nets' own demand.
+
+Nets: A10KW (the SUMO wheel's OSM net near Berlin with its `osm.passenger_mw.rou.xml` demand) and
+the OSM-like nets of `sumo_scenarios.osm_like` (netconvert from plain XML: a 3-lane motorway whose
+right lane drops into an exit, a 2-lane carriageway of 3.2 m lanes, a 3 -> 2 lane drop, and a
+left-hand copy of the motorway), each with flows through, off at the exit and on from the ramp.
+Each net is run as a user's scenario: `behave populate --sumocfg NET.sumocfg --share 0.2
+--no-shield`, so a fifth of its passenger cars, on the same routes as SUMO's, are driven by the
+policy. Measured per run from the summary, the per-agent table and the FCD: losses per
+agent-hour, agents and SUMO's cars standing still for 30 s or more, the share of vehicles that
+departed in the run's first half and reached the end of their route, handovers to SUMO.
+Prints the table and writes it to docs/own_nets.md with the commit measured.
+
+    python benchmarks/own_nets_bars.py --seeds 0,1 --duration 300
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import xml.etree.ElementTree as ET
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from behaviors.export import read_fcd
+from behaviors.files import atomic_write_text
+from behaviors.populate import DEFAULT_POLICY, LONG_STANDSTILL_S, STANDSTILL_SPEED, config_from, populate
+from behaviors.realism import agents_path
+from behaviors.sumo_home import sumo_home
+from sumo_scenarios.build import write_xml
+from sumo_scenarios.osm_like import OSM_LIKE_NAMES, build_osm_like
+
+SHARE = 0.2
+ARRIVAL_MARGIN = 0.05
+"""Agents reach their route ends "as often" as SUMO's cars if their share is at most this much lower."""
+
+
+def a10kw_sumocfg(folder: Path) -> Path:
+    """A sumocfg for the wheel's A10KW net with its motorway passenger demand (absolute paths)."""
+    a10 = sumo_home() / "tools" / "game" / "A10KW"
+    root = ET.Element("configuration")
+    inputs = ET.SubElement(root, "input")
+    ET.SubElement(inputs, "net-file", value=str(a10 / "osm.net.xml"))
+    ET.SubElement(inputs, "route-files", value=str(a10 / "osm.passenger_mw.rou.xml"))
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "A10KW.sumocfg"
+    write_xml(root, path)
+    return path
+
+
+def scenarios(folder: Path, names: list[str]) -> dict[str, Path]:
+    """Net name -> sumocfg for the names given, the OSM-like nets built afresh into `folder`."""
+    return {
+        name: a10kw_sumocfg(folder / name) if name == "A10KW" else build_osm_like(name, folder / name).sumocfg
+        for name in names
+    }
+
+
+@dataclass(frozen=True)
+class Facts:
+    """What one run says about the bars."""
+
+    agents: int
+    agent_hours: float
+    losses: int  # collisions + off-tracks
+    no_progress: int
+    agents_standing: int  # agents that stood still LONG_STANDSTILL_S or more at a time
+    cars: int  # SUMO's vehicles (never agents)
+    cars_standing: int
+    agents_arrived: float  # share of the first half's departures that reached their route end
+    cars_arrived: float
+    handovers: int
+
+
+def longest_standstills(fcd: pd.DataFrame, step: float) -> pd.Series:
+    """Per vehicle, its longest time at a stretch with speed below STANDSTILL_SPEED (from FCD rows)."""
+    rows = fcd.sort_values(["id", "time"])
+    standing = (rows["speed"] < STANDSTILL_SPEED).to_numpy()
+    ids = rows["id"].to_numpy()
+    new_run = np.r_[True, (standing[1:] != standing[:-1]) | (ids[1:] != ids[:-1])]
+    run = np.cumsum(new_run)
+    lengths = pd.Series(standing.astype(float) * step).groupby(run).sum()
+    return pd.Series(lengths.to_numpy()[run - 1], index=ids).groupby(level=0).max()
+
+
+def arrived_share(depart: pd.Series, arrived: pd.Series, by: float) -> float:
+    """Of the vehicles that departed by `by`, the share that reached the end of their route."""
+    cohort = depart <= by
+    return float(arrived[cohort].mean()) if cohort.any() else float("nan")
+
+
+def facts_of(fcd: pd.DataFrame, agents: pd.DataFrame, summary, step: float, duration: float) -> Facts:
+    cars = fcd[~fcd["id"].isin(agents["id"])]
+    span = cars.groupby("id")["time"].agg(["min", "max"])
+    last = float(fcd["time"].max())
+    hours = summary.agent_steps * step / 3600
+    return Facts(
+        agents=len(agents),
+        agent_hours=hours,
+        losses=summary.collisions + summary.off_tracks,
+        no_progress=int((agents["end_reason"] == "no_progress").sum()),
+        agents_standing=int((agents["longest_standstill_s"] >= LONG_STANDSTILL_S).sum()),
+        cars=len(span),
+        cars_standing=int((longest_standstills(cars, step) >= LONG_STANDSTILL_S).sum()),
+        agents_arrived=arrived_share(agents["depart_s"], agents["end_reason"] == "arrived", duration / 2),
+        cars_arrived=arrived_share(span["min"], span["max"] < last, duration / 2),
+        handovers=summary.handovers,
+    )
+
+
+def run(sumocfg: Path, seed: int, duration: float, fcd: Path, policy: Path) -> Facts:
+    config = config_from(
+        sumocfg, share=SHARE, seed=seed, duration=duration, fcd=fcd, shield=False, policy=policy
+    )
+    summary = populate(config)
+    agents = pd.read_csv(agents_path(fcd))
+    return facts_of(read_fcd(fcd), agents, summary, config.step_length, duration)
+
+
+@dataclass(frozen=True)
+class Row:
+    name: str
+    bar: str
+    cell: Callable[[Facts], str]
+    ok: Callable[[Facts], bool] | None = None  # None: a reference row, no bar
+
+
+def pct(x: float) -> str:
+    return "-" if np.isnan(x) else f"{100 * x:.0f}%"
+
+
+ROWS = (
+    Row("agents (agent-hours)", "", lambda f: f"{f.agents} ({f.agent_hours:.2f} h)"),
+    Row("collisions + off-tracks per agent-hour", "<= 1",
+        lambda f: f"{f.losses / max(f.agent_hours, 1e-9):.2f} ({f.losses})",
+        lambda f: f.losses <= f.agent_hours),
+    Row("agents standing still >= 30 s", "0",
+        lambda f: str(f.agents_standing), lambda f: f.agents_standing == 0),
+    Row("SUMO's vehicles standing still >= 30 s (reference)", "", lambda f: f"{f.cars_standing} of {f.cars}"),
+    Row("agents reaching their route end (departed in the first half)", "as often as SUMO's (-5 pts)",
+        lambda f: pct(f.agents_arrived), lambda f: f.agents_arrived >= f.cars_arrived - ARRIVAL_MARGIN),
+    Row("SUMO's vehicles reaching theirs (reference)", "", lambda f: pct(f.cars_arrived)),
+    Row("agents taken out by SUMO (no progress)", "", lambda f: str(f.no_progress)),
+    Row("handovers to SUMO (per agent)", "",
+        lambda f: f"{f.handovers} ({f.handovers / max(f.agents, 1):.2f})"),
+)  # fmt: skip
+
+
+def table(columns: dict[str, Facts]) -> str:
+    header = ["", "bar", *columns, "met"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row in ROWS:
+        met = "" if row.ok is None else ("yes" if all(row.ok(f) for f in columns.values()) else "no")
+        cells = [row.name, row.bar, *(row.cell(f) for f in columns.values()), met]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def commit() -> str:
+    """The commit measured, marked when behave's code differs from it in the working tree."""
+    head = subprocess.run(["git", "log", "-1", "--format=%h"], capture_output=True, text=True).stdout.strip()
+    dirty = subprocess.run(
+        ["git", "status", "--porcelain", "behaviors"], capture_output=True, text=True
+    ).stdout
+    return head + (" + uncommitted changes under behaviors/" if dirty.strip() else "")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--policy", type=Path, default=DEFAULT_POLICY)
+    parser.add_argument("--seeds", default="0,1")
+    parser.add_argument("--duration", type=float, default=300.0)
+    parser.add_argument("--out", type=Path, default=Path("runs/own_nets"))
+    parser.add_argument("--doc", type=Path, default=Path("docs/own_nets.md"))
+    parser.add_argument("--nets", default=",".join(("A10KW", *OSM_LIKE_NAMES)), help="comma-separated subset")
+    args = parser.parse_args()
+    measured = commit()
+    columns: dict[str, Facts] = {}
+    for name, sumocfg in scenarios(args.out / "nets", args.nets.split(",")).items():
+        for seed in (int(s) for s in args.seeds.split(",")):
+            facts = run(
+                sumocfg, seed, args.duration, args.out / name / f"s{seed}" / "fcd.parquet", args.policy
+            )
+            columns[f"{name} s{seed}"] = facts
+            print(f"{name} seed {seed}: {facts}", flush=True)
+    text = table(columns)
+    print(text)
+    command = f"python benchmarks/own_nets_bars.py --seeds {args.seeds} --duration {args.duration:g}"
+    if args.nets != parser.get_default("nets"):
+        command += f" --nets {args.nets}"
+    if args.policy != DEFAULT_POLICY:
+        command += f" --policy {args.policy}"
+    doc = (
+        "# The shipped policy on nets nobody here drew (issue 12's bars)\n\n"
+        f"`{command}` (`make own-nets`), measured at commit {measured}.\n\n"
+        f"Each net runs as a user's scenario with its own demand: `behave populate --sumocfg NET.sumocfg "
+        f"--share {SHARE:g} --no-shield --duration {args.duration:g} --seed S` with the bundled traffic "
+        "policy, so a fifth of the passenger cars, on the routes the demand gives them (through, off at "
+        "the exit, on from the ramp), are agents. A10KW: the SUMO wheel's `tools/game/A10KW/osm.net.xml` "
+        "with `osm.passenger_mw.rou.xml`. The others are built by `sumo_scenarios/osm_like.py` with "
+        "netconvert from plain XML (curves of 600-1000 m drawn with a point every 5 m): `motorway3` 3 "
+        "lanes of 3.5 m whose right lane drops into the exit, the ramp adding it back; `carriageway2` 2 "
+        "lanes of SUMO's default 3.2 m with a deceleration lane to the exit and an acceleration lane from "
+        "the ramp; `lanedrop` 3 lanes becoming 2, then an exit and a ramp, all connections netconvert's "
+        "guesses; `motorway3_lefthand` `motorway3` mirrored and built with `--lefthand`. Flows: 1,400 "
+        "cars/h through, 300 off at the exit, 300 on from the ramp, 160 lorries/h.\n\n"
+        "Standing still: SUMO speed below 0.1 m/s for 30 s or more at a stretch (agents: the per-agent "
+        "table; SUMO's vehicles: their FCD rows). Reaching the route end: of the vehicles that departed "
+        "in the first half of the run, the share that arrived before it ended.\n\n" + text + "\n"
+    )
+    atomic_write_text(args.doc, doc)
+
+
+if __name__ == "__main__":
+    main()
