@@ -130,7 +130,7 @@ class DistributedTrainer(Trainer):
         learner.observe(rollout.obs, rollout.act, rollout.rew, rollout.next_obs, rollout.terminated)
         learner.noise.steps += rollout.steps  # env steps of all workers: the exploration decay
         per_step = self.config.updates_per_step
-        learner.update(len(rollout.obs) if per_step is None else per_step * rollout.steps)
+        learner.update(len(rollout.obs) if per_step is None else per_step * rollout.steps, self.update_log)
         return episode_row(
             self.episode, rollout.stats, rollout.wall_s, learner.updates - updates_before, self.speed_limit
         )

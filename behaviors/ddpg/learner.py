@@ -18,6 +18,8 @@ from behaviors.ddpg.noise import DEFAULT_MU, DEFAULT_SIGMA, DEFAULT_THETA, OUNoi
 
 _LOW = np.asarray(ACTION_LOW, np.float32)
 _HIGH = np.asarray(ACTION_HIGH, np.float32)
+UpdateStats = tuple[float, float, float]
+"""One gradient step's critic loss, actor loss and mean Q."""
 
 
 @dataclass(frozen=True)
@@ -125,9 +127,10 @@ class DDPGLearner:
     def ready(self) -> bool:
         return len(self.buffer) >= max(self.config.warmup, 1)
 
-    def update(self, n_updates: int = 1) -> dict[str, float]:
+    def update(self, n_updates: int = 1, each: list[UpdateStats] | None = None) -> dict[str, float]:
         """n gradient steps (or one n-fold batch if config.batched); {} during warm-up.
-        Returns the mean critic loss, actor loss and Q over the steps taken."""
+        Returns the mean critic loss, actor loss and Q over the steps taken; `each`, if given,
+        gets every step's (critic loss, actor loss, mean Q) appended (TensorBoard's per-update log)."""
         if not self.ready or n_updates < 1:
             return {}
         cfg = self.config
@@ -137,10 +140,12 @@ class DDPGLearner:
         else:
             batches = (self.buffer.sample(cfg.batch_size) for _ in range(n_updates))
             stats = [self._step(batch, cfg.tau) for batch in batches]
+        if each is not None:
+            each.extend(stats)
         keys = ("critic_loss", "actor_loss", "mean_q")
         return {k: float(np.mean([s[i] for s in stats])) for i, k in enumerate(keys)}
 
-    def _step(self, batch: Batch, tau: float) -> tuple[float, float, float]:
+    def _step(self, batch: Batch, tau: float) -> UpdateStats:
         """One critic step (equation 1), one actor step (equation 2), then the soft updates."""
         with torch.no_grad():
             next_q = self.critic_target(batch.next_obs, self.actor_target(batch.next_obs))
@@ -226,9 +231,9 @@ class IndependentLearners:
         for k, rows in self._routes(agent_slots):
             self.learners[k].observe(obs[rows], act[rows], rew[rows], next_obs[rows], terminated[rows])
 
-    def update(self) -> dict[str, float]:
+    def update(self, each: list[UpdateStats] | None = None) -> dict[str, float]:
         """One update per learner (the baseline's per-step budget); metrics averaged."""
-        stats = [s for s in (lr.update(1) for lr in self.learners) if s]
+        stats = [s for s in (lr.update(1, each) for lr in self.learners) if s]
         if not stats:
             return {}
         return {k: float(np.mean([s[k] for s in stats])) for k in stats[0]}
