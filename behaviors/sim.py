@@ -282,6 +282,7 @@ class SumoSim:
         lateral comfort of SUMO's drivers (1 m/s^2, 1 m/s) instead of the agents' exact moves."""
         v = self._sumo.vehicle
         for vid in ids:
+            v.setSpeed(vid, -1.0)  # the agent's last commanded speed would otherwise hold for good
             v.setSpeedMode(vid, SUMO_SPEED_MODE)
             v.setLaneChangeMode(vid, SUMO_LANE_CHANGE_MODE)
             v.setParameter(vid, "laneChangeModel.lcAccelLat", "1.0")

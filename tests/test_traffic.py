@@ -320,6 +320,27 @@ def test_sumo_takes_an_agent_whose_lane_becomes_an_exit_and_hands_it_back(tmp_pa
         assert lowest_speed > 15.0  # never stopped at the end of the exit lane
 
 
+def test_sumo_chooses_the_speed_of_an_agent_it_took(tmp_path):
+    """The agent's last commanded speed must not stick: SUMO drives a handed-over car as its own."""
+    net = exit_net(tmp_path)
+    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), driver="traffic")
+    options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
+    with SumoSim(options) as sim:
+        sim.add_route("main", ["A", "B"])
+        sim.add_vehicle("agent", "main", "behave_keeper", lane=0, pos=50.0, speed=12.0)
+        sim.step()
+        sim.take_control(["agent"])
+        fleet.add(["agent"], np.array([12.0]), np.array([0.0]), np.array([0.8]))
+        speeds_while_handed = []
+        while "agent" in sim.vehicle_ids() and len(speeds_while_handed) < 50:
+            fleet.sense(sim, sim.read_vehicles(), True)
+            fleet.act(sim, np.array([[0.0, 0.0, 0.0]], np.float32))  # hold 12 m/s while it drives
+            sim.step()
+            if fleet.rows.handed[0]:
+                speeds_while_handed.append(float(sim.read_speeds(["agent"])[0]))
+        assert speeds_while_handed and max(speeds_while_handed) > 15.0
+
+
 @pytest.mark.parametrize("lefthand", [False, True])
 def test_the_fast_side_is_the_higher_lane_index_in_right_and_left_hand_nets(tmp_path, lefthand):
     """A car in lane 2 beside an agent in lane 1 is on the agent's fast side in both kinds of net."""
