@@ -232,19 +232,35 @@ FLOWS = (
 )
 
 
-def write_demand(path: Path, ways: list[Way], exit_edge: str, ramp_edge: str, end: float) -> None:
+@dataclass(frozen=True)
+class Demand:
+    """How much traffic (a factor on FLOWS) and how much its drivers dawdle (Krauss sigma)."""
+
+    end: float = 3600.0
+    scale: float = 1.0
+    sigma: float = 0.5
+
+
+def write_demand(path: Path, ways: list[Way], exit_edge: str, ramp_edge: str, demand: Demand) -> None:
     """Flows through, off at the exit, on from the ramp (cars as OSM demand draws them, lorries)."""
     main = [w.id for w in ways if w.id not in (exit_edge, ramp_edge)]
     starts = {"main": main[0], "ramp": ramp_edge}
     ends = {"main": main[-1], "exit": exit_edge}
     routes = ET.Element("routes")
     ET.SubElement(
-        routes, "vType", id="car", vClass="passenger", sigma="0.5", speedFactor="normc(1,0.1,0.2,2)"
+        routes,
+        "vType",
+        id="car",
+        vClass="passenger",
+        sigma=fmt(demand.sigma),
+        speedFactor="normc(1,0.1,0.2,2)",
     )
-    ET.SubElement(routes, "vType", id="lorry", vClass="truck", length="12", maxSpeed="25")
+    ET.SubElement(
+        routes, "vType", id="lorry", vClass="truck", length="12", maxSpeed="25", sigma=fmt(demand.sigma)
+    )
     for flow, (src, dst), vtype, per_hour in FLOWS:
-        attrs = {"id": flow, "type": vtype, "begin": "0", "end": fmt(end), "from": starts[src],
-                 "to": ends[dst], "vehsPerHour": str(per_hour), "departLane": "best",
+        attrs = {"id": flow, "type": vtype, "begin": "0", "end": fmt(demand.end), "from": starts[src],
+                 "to": ends[dst], "vehsPerHour": fmt(per_hour * demand.scale), "departLane": "best",
                  "departSpeed": "max"}  # fmt: skip
         ET.SubElement(routes, "flow", attrs)
     write_xml(routes, path)
@@ -261,8 +277,8 @@ def write_sumocfg(path: Path, net: Path, routes: Path, end: float) -> None:
     write_xml(root, path)
 
 
-def build_osm_like(name: str, folder: Path, end: float = 3600.0) -> OsmLikeNet:
-    """Build one of OSM_LIKE_NAMES into `folder` (net, plain XML, demand until `end`, sumocfg)."""
+def build_osm_like(name: str, folder: Path, demand: Demand = Demand()) -> OsmLikeNet:
+    """Build one of OSM_LIKE_NAMES into `folder` (net, plain XML, its demand, sumocfg)."""
     if name not in OSM_LIKE_NAMES:
         raise BehaveError(f"unknown test net '{name}' (choose from {', '.join(OSM_LIKE_NAMES)})")
     lefthand = name.endswith(LEFTHAND_SUFFIX)
@@ -273,7 +289,7 @@ def build_osm_like(name: str, folder: Path, end: float = 3600.0) -> OsmLikeNet:
     write_plain(folder, name, ways, connections)
     net = run_netconvert(folder, name, lefthand)
     routes = folder / f"{name}.rou.xml"
-    write_demand(routes, ways, exit_edge, ramp_edge, end)
+    write_demand(routes, ways, exit_edge, ramp_edge, demand)
     sumocfg = folder / f"{name}.sumocfg"
-    write_sumocfg(sumocfg, net, routes, end)
+    write_sumocfg(sumocfg, net, routes, demand.end)
     return OsmLikeNet(name, net, routes, sumocfg, exit_edge, ramp_edge, lefthand)
