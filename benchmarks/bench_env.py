@@ -6,8 +6,12 @@ For every case the same process runs, on one env and one seed (identical placeme
 2. the SUMO-alone run: the same insertion, then every agent is handed back to SUMO's
    own models (Krauss + SL2015) and only `simulationStep` is timed.
 
+Then, beside highway-env (benchmarks/highway_anchor.py; the `bench` extra): agent-steps per
+second of the "6 agents among 50 SUMO cars" row against highway-v0 with 6 controlled and 50 other
+cars, on the same machine in the same run (`--highway-steps 0` leaves it out).
+
 Usage: python benchmarks/bench_env.py [--agents 6,100,1000] [--steps 200] [--seed 0] [--rounds 3]
-                                      [--csv PATH]
+                                      [--highway-steps 50] [--csv PATH]
 """
 
 from __future__ import annotations
@@ -21,10 +25,20 @@ from pathlib import Path
 
 import numpy as np
 from common import print_table, progress, write_csv
+from highway_anchor import (
+    ANCHOR_COLUMNS,
+    HIGHWAY_WARMUP,
+    INSTALL_HINT,
+    POLICY_HZ,
+    AnchorResult,
+    anchor_rows,
+    cpu_model,
+    run_highway,
+)
 from rich.console import Console
 
 from behaviors import make_env
-from behaviors.env import BehaveEnv
+from behaviors.env import BehaveEnv, EnvConfig
 from behaviors.geometry import RAY_RANGE
 from sumo_scenarios import Scenario, build_ring
 
@@ -41,6 +55,7 @@ BIG_RING_STRAIGHT = 8000.0  # metres: room for 1,000 cars at the start spacing o
 BUNDLED_RING_MAX = 270  # about how many cars the bundled ring holds
 TARGET_RATIO_1000 = 1.3
 TARGET_RATE_6_AMONG_50 = 7000.0
+STEP_S = EnvConfig().step_length
 
 ScenarioSource = Callable[[Path], "str | Scenario"]
 
@@ -288,17 +303,47 @@ def target_lines(results: list[Result]) -> Iterator[str]:
             )
 
 
+def among_50(results: list[Result]) -> Result | None:
+    return next((r for r in results if r.case.agents == 6 and r.case.opponents == 50), None)
+
+
+def print_beside_highway(behave: Result, args: argparse.Namespace, console: Console) -> None:
+    """behave's 6-among-50 row against highway-v0 at 5 and 1 Hz decisions, or why not."""
+    try:
+        import highway_env  # noqa: F401
+    except ImportError:
+        console.print(INSTALL_HINT)
+        return
+    anchors = []
+    for hz in POLICY_HZ:
+        with progress(console, f"running highway-env, {hz} Hz decisions"):
+            anchors.append(run_highway(hz, args.highway_steps, args.seed))
+    case = behave.case
+    cars = case.agents + case.opponents
+    ours = AnchorResult(
+        f"behave, {case.label}", case.agents, cars, STEP_S, behave.agent_steps, behave.total_s
+    )
+    title = (
+        f"beside highway-env on {cpu_model()}: behave {args.rounds} x {args.steps} steps after "
+        f"{WARMUP_STEPS} warm-up, highway-env {args.highway_steps} per row after {HIGHWAY_WARMUP}"
+    )
+    print_table(console, title, ANCHOR_COLUMNS, anchor_rows(ours, anchors))
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--agents", default="6,100,1000", help="comma-separated agent counts")
     parser.add_argument("--steps", type=int, default=200, help="timed steps per run")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rounds", type=int, default=3, help="controlled / SUMO-alone alternations")
+    parser.add_argument("--highway-steps", type=int, default=50, help="timed highway-env steps, 0: none")
     parser.add_argument("--csv", type=Path, default=None, help="also write the table here")
     args = parser.parse_args(argv)
     args.agent_counts = [int(a) for a in args.agents.split(",") if a.strip()]
     if not args.agent_counts or min(args.agent_counts) < 1 or min(args.steps, args.rounds) < 1:
         parser.error("--agents needs positive counts; --steps and --rounds must be positive")
+    if args.highway_steps < 0:
+        parser.error("--highway-steps must be >= 0")
     return args
 
 
@@ -306,14 +351,20 @@ def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     console = Console(width=max(Console().width, 170))
     results = []
+    cases = cases_for(args.agent_counts)
+    if args.highway_steps and 6 not in args.agent_counts:
+        cases += [c for c in cases_for([6]) if c.opponents]  # the row highway-env stands beside
     with tempfile.TemporaryDirectory(prefix="behave_bench_") as tmp:
-        for case in cases_for(args.agent_counts):
+        for case in cases:
             with progress(console, f"running {case.label}, {case.agents} agents"):
                 scenario = case.scenario(Path(tmp))
                 results.append(run_case(case, scenario, args.seed, args.steps, args.rounds))
     print_results(results, args, console)
     for line in target_lines(results):
         console.print(line)
+    behave = among_50(results)
+    if args.highway_steps and behave is not None:
+        print_beside_highway(behave, args, console)
     if args.csv is not None:
         write_csv(args.csv, COLUMNS, (row_of(r, for_csv=True) for r in results))
         console.print(f"wrote {args.csv}")
