@@ -69,9 +69,12 @@ def test_update_blocks_are_the_means_of_the_learners_steps_once_each_across_resu
 
 
 def test_ray_workers_log_update_blocks_too(tmp_path: Path) -> None:
+    """Two rollout workers on Ray (DistributedTrainer): the learner's blocks land the same way."""
     pytest.importorskip("ray", reason="ray is not installed (the distributed extra)")
     run = tmp_path / "run"
-    prepare_run(TrainConfig(**TINY, episodes=3, workers=1), run, resume=False).run()
+    trainer = prepare_run(TrainConfig(**TINY, episodes=3, workers=2), run, resume=False)
+    assert type(trainer).__name__ == "DistributedTrainer"
+    trainer.run()
     total = torch.load(run / "state.pt", weights_only=True)["learner"]["updates"]
     assert total >= UPDATE_LOG_EVERY
     for tag, points in update_scalars(run).items():
