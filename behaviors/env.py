@@ -184,6 +184,8 @@ class BehaveEnv(ParallelEnv):
         "name": "behave_v0", "render_modes": list(RENDER_MODES), "render_fps": 5, "is_parallelizable": True
     }  # fmt: skip
     render_mode: str | None = None
+    sim_extra: tuple[str, ...] = ()
+    """More SUMO options, from the next episode on (`behave evaluate` records each episode's FCD)."""
 
     def __init__(self, config: EnvConfig, render_mode: str | None = None) -> None:
         config.validate()
@@ -259,11 +261,11 @@ class BehaveEnv(ParallelEnv):
         """Start an episode; returns observations [n_agents, D] in slot order."""
         if seed is not None:
             self._rng = np.random.default_rng(seed)
-        sumo_seed = int(self._rng.integers(2**31 - 1))
+        options = self._sim_options(int(self._rng.integers(2**31 - 1)))
         if self.sim is None:
-            self.sim = SumoSim(self._sim_options(sumo_seed))
+            self.sim = SumoSim(options)
         else:
-            self.sim.reload(sumo_seed)
+            self.sim.restart(options)
         self._populate()
         self.steps = 0
         vehicles = self.sim.read_vehicles()
@@ -358,6 +360,7 @@ class BehaveEnv(ParallelEnv):
             routes=(s.routes,),
             step_length=self.config.step_length,
             seed=seed,
+            extra=self.sim_extra,
         )
 
     def _check_capacity(self) -> None:

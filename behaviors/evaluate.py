@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import re
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,12 +20,26 @@ import torch
 
 from behaviors.ddpg.checkpoint import load_actor, load_checkpoint
 from behaviors.ddpg.networks import Actor
-from behaviors.env import BEHAVIOURS, EnvConfig, create_env
+from behaviors.env import BEHAVIOURS, KEEPER_TYPE, OVERTAKER_TYPE, BehaveEnv, EnvConfig, StepBatch, create_env
 from behaviors.errors import BehaveError
-from behaviors.files import atomic_write_bytes, atomic_write_text, ensure_writable_dir
+from behaviors.export import fcd_options, read_fcd
+from behaviors.files import atomic_write_bytes, atomic_write_text, ensure_writable_dir, temp_dir
 from behaviors.metrics import EpisodeStats, mean_rows, passed_fraction, summary
+from behaviors.populate import STANDSTILL_SPEED
+from behaviors.realism import (
+    SKIP_S,
+    NothingToMeasure,
+    Report,
+    agents_path,
+    measure,
+    read_agents,
+    read_lanes,
+    stack_runs,
+)
+from behaviors.realism import write_report as write_realism
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID
 from behaviors.train import episode_seed
+from sumo_scenarios import Scenario, get_scenario
 
 Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """(observations [n, D], agent slots [n]) -> actions [n, 3]."""
@@ -63,24 +79,86 @@ def checkpoint_policy(path: Path, obs_dim: int) -> Policy:
     return act
 
 
-def evaluate(config: EnvConfig, policy: Policy, episodes: int, seed: int) -> list[dict[str, Any]]:
-    """`episodes` rows of `summary`, each from a fresh, seeded episode."""
+def evaluate(
+    config: EnvConfig, policy: Policy, episodes: int, seed: int, record: Path | None = None
+) -> list[dict[str, Any]]:
+    """`episodes` rows of `summary`, each from a fresh, seeded episode.
+
+    `record`: a directory where SUMO writes each episode's FCD (`episode_fcd`) and behave the
+    agents' ends beside it (`<stem>.agents.csv`, as populate's): what `behave report` reads.
+    """
     env = create_env(config)
     limit = max(info.speed for info in env.geometry.edges.values() if info.normal)
     rows = []
     try:
         for episode in range(episodes):
+            fcd = None if record is None else episode_fcd(record, episode)
+            if fcd is not None:
+                env.sim_extra = tuple(fcd_options(fcd, geo=False))
             obs = env.reset_arrays(episode_seed(seed, 1_000_000 + episode))
             stats = EpisodeStats(config.n_agents, env.slot_behaviour.copy())
+            ends = None if fcd is None else AgentEnds(env)
             while env.agents:
                 slots = env.live_slots
                 batch = env.step_arrays(policy(obs, slots).astype(np.float32))
                 stats.record(slots, batch)
+                if ends is not None:
+                    ends.record(batch)
                 obs = env.live_obs
+            if fcd is not None and ends is not None:
+                atomic_write_text(agents_path(fcd), ends.table().to_csv(index=False))
             rows.append({"episode": episode, **summary(stats, limit, passed_fraction(env))})
     finally:
         env.close()
     return rows
+
+
+def episode_fcd(record: Path, episode: int) -> Path:
+    """Where `evaluate` has SUMO write an episode's FCD (csv: read back faster than xml)."""
+    return record / f"episode_{episode}.parquet"
+
+
+class AgentEnds:
+    """How and when each agent of an episode ended, in populate's per-agent columns: the losses
+    per agent-hour of the realism report."""
+
+    def __init__(self, env: BehaveEnv) -> None:
+        assert env.sim is not None
+        n = len(env.possible_agents)
+        self.sim, self.dt = env.sim, env.config.step_length
+        self.ids = list(env.possible_agents)
+        self.vtypes = np.where(env.slot_behaviour > 0, OVERTAKER_TYPE, KEEPER_TYPE)
+        self.depart = env.sim.time
+        self.end = np.full(n, np.nan)
+        self.reason = np.full(n, "still_driving", dtype=object)
+        self.standing, self.longest = np.zeros(n), np.zeros(n)
+
+    def record(self, batch: StepBatch) -> None:
+        """After a step: standstills, and the end (time, reason) of the agents that left."""
+        slots = batch.slots
+        standing = np.where(batch.speed < STANDSTILL_SPEED, self.standing[slots] + self.dt, 0.0)
+        self.standing[slots] = standing
+        self.longest[slots] = np.maximum(self.longest[slots], standing)
+        ended = batch.terminated | batch.truncated
+        if not ended.any():  # most steps: no per-agent strings
+            return
+        self.end[slots[ended]] = self.sim.time
+        for reason, flag in (("collision", batch.collided), ("off_track", batch.off_track),
+                             ("no_progress", batch.no_progress)):  # fmt: skip
+            self.reason[slots[ended & flag]] = reason
+
+    def table(self) -> pd.DataFrame:
+        return pd.DataFrame({
+            "id": self.ids, "vtype": self.vtypes, "depart_s": self.depart, "end_s": self.end,
+            "end_reason": self.reason, "longest_standstill_s": self.longest,
+        })  # fmt: skip
+
+
+def measure_episodes(record: Path, episodes: int, net: Path) -> Report:
+    """The realism report of all the episodes `evaluate` recorded in `record`, measured together."""
+    fcds = [episode_fcd(record, k) for k in range(episodes)]
+    fcd, agents = stack_runs([(read_fcd(path), read_agents(agents_path(path))) for path in fcds])
+    return measure(fcd, read_lanes(net), agents=agents)
 
 
 PAPER_METRICS = (
@@ -165,36 +243,130 @@ def plan_evaluation(
     return EvaluationPlan(policies, settings, episodes, seed)
 
 
-def run_plan(plan: EvaluationPlan, on_setting: Callable[[str, str], None] | None = None) -> pd.DataFrame:
-    """One row per (policy, setting) with the episode-averaged metrics."""
-    rows = []
-    for label, path in plan.policies:
-        for setting, config in plan.settings:
-            if on_setting:
-                on_setting(label, setting)
-            if path is None:
-                env_config = dataclasses.replace(config, sumo_drives=True)
-                policy: Policy = lambda obs, slots: np.zeros((len(obs), 3), np.float32)  # noqa: E731
-            else:
-                env_config = config
-                policy = checkpoint_policy(path, config.obs_size)
-            episodes = evaluate(env_config, policy, plan.episodes, plan.seed)
-            mean = mean_rows(episodes)
-            if "passed_frac" in mean:
-                mean["overtakes_per_agent"] = mean["passed_frac"] * config.n_opponents
-            rows.append({"policy": label, "setting": setting, "agents": config.n_agents,
-                         "episodes": plan.episodes, **mean})  # fmt: skip
-    return pd.DataFrame(rows)
+def run_plan(
+    plan: EvaluationPlan,
+    on_setting: Callable[[str, str], None] | None = None,
+    realism: Path | None = None,
+    *,
+    pictures: bool = True,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """One row per (policy, setting) with the episode-averaged metrics, and the realism table.
+
+    With `realism` (a directory), SUMO records every episode's FCD and each (policy, setting)
+    gets its realism report in realism/<policy>/<setting>/ (`pictures`: with realism.png); the
+    table has its main metrics per group (REALISM_COLUMNS). Without, that table is empty.
+    """
+    rows, realism_rows = [], []
+    record = None
+    if realism is not None:
+        ensure_writable_dir(realism)
+        record = temp_dir(realism / "fcd")
+    try:
+        for label, path in plan.policies:
+            for setting, config in plan.settings:
+                if on_setting:
+                    on_setting(label, setting)
+                if path is None:
+                    env_config = dataclasses.replace(config, sumo_drives=True)
+                    policy: Policy = lambda obs, slots: np.zeros((len(obs), 3), np.float32)  # noqa: E731
+                else:
+                    env_config = config
+                    policy = checkpoint_policy(path, config.obs_size)
+                episodes = evaluate(env_config, policy, plan.episodes, plan.seed, record=record)
+                mean = mean_rows(episodes)
+                if "passed_frac" in mean:
+                    mean["overtakes_per_agent"] = mean["passed_frac"] * config.n_opponents
+                rows.append({"policy": label, "setting": setting, "agents": config.n_agents,
+                             "episodes": plan.episodes, **mean})  # fmt: skip
+                if record is not None and realism is not None:
+                    realism_rows += realism_of_setting(record, plan.episodes, config, realism, label, setting,
+                                                       picture=pictures)  # fmt: skip
+    finally:
+        if record is not None:
+            shutil.rmtree(record, ignore_errors=True)
+    return pd.DataFrame(rows), pd.DataFrame(realism_rows)
 
 
-def write_report(results: pd.DataFrame, out: Path) -> list[Path]:
-    """results.csv, results.md and one bar chart per paper metric (metrics.png)."""
+def realism_of_setting(
+    record: Path, episodes: int, config: EnvConfig, realism: Path, policy: str, setting: str, *, picture: bool
+) -> list[dict[str, Any]]:
+    """Measure the recorded episodes, write their report to realism/<policy>/<setting>/ and return
+    its main rows; if every car left before the seconds the report skips, one row that says so."""
+    try:
+        report = measure_episodes(record, episodes, scenario_net(config))
+    except NothingToMeasure:
+        return [{"policy": policy, "setting": setting, "group": f"none: every car left within {SKIP_S:g} s"}]
+    write_realism(report, realism / slug(policy) / slug(setting), f"{policy}, {setting}", picture=picture)
+    return main_realism(report, policy, setting)
+
+
+def scenario_net(config: EnvConfig) -> Path:
+    scenario = config.scenario
+    return (scenario if isinstance(scenario, Scenario) else get_scenario(scenario)).net
+
+
+def slug(label: str) -> str:
+    """A directory name for a policy or setting label: `sumo (Krauss + SL2015)` -> `sumo-krauss-sl2015`."""
+    return re.sub(r"[^a-z0-9]+", "-", label.lower()).strip("-") or "unnamed"
+
+
+REALISM_COLUMNS = (  # the realism report's main metrics in results.md: key, title, shown as a share
+    ("lane_changes_per_km", "lane changes / km", False),
+    ("lane_0_share", "rightmost lane", True),
+    ("lat_accel_over_limit", "lat. accel > 1.5 m/s^2", True),
+    ("lc_peak_accel_median", "LC peak lat. accel, median", False),
+    ("thw_below_limit", "THW < 1 s", True),
+    ("passes_overtaking_side", "passes on the left", True),
+    ("losses_per_agent_hour", "collisions + off-tracks / agent-h", False),
+    ("lane_offset_mean", "lane-centre offset (m)", False),
+)
+
+
+def main_realism(report: Report, policy: str, setting: str) -> list[dict[str, Any]]:
+    """One row per group of a realism report with the REALISM_COLUMNS metrics."""
+    table = report.table
+    losses = table.loc["collisions_per_agent_hour"] + table.loc["off_tracks_per_agent_hour"]
+    main = table.reindex([key for key, _, _ in REALISM_COLUMNS if key != "losses_per_agent_hour"])
+    return [
+        {"policy": policy, "setting": setting, "group": group, **main[group].to_dict(),
+         "losses_per_agent_hour": losses[group]}
+        for group in table.columns
+    ]  # fmt: skip
+
+
+def realism_markdown(realism: pd.DataFrame) -> str:
+    """The REALISM_COLUMNS table: one line per policy, setting and group."""
+    header = ["policy", "setting", "group", *(title for _, title, _ in REALISM_COLUMNS)]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for _, row in realism.iterrows():
+        values = [_realism_cell(row.get(key, np.nan), share) for key, _, share in REALISM_COLUMNS]
+        lines.append("| " + " | ".join([row["policy"], row["setting"], row["group"], *values]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _realism_cell(value: float, share: bool) -> str:
+    if value is None or np.isnan(value):
+        return "-"
+    return f"{100 * value:.1f}%" if share else f"{value:.2f}"
+
+
+def write_report(results: pd.DataFrame, out: Path, realism: pd.DataFrame | None = None) -> list[Path]:
+    """results.csv, results.md and one bar chart per paper metric (metrics.png); with a realism
+    table (`run_plan`), realism_summary.csv and that table in results.md too."""
     ensure_writable_dir(out)
     csv_path, md_path, png_path = out / "results.csv", out / "results.md", out / "metrics.png"
     atomic_write_text(csv_path, results.to_csv(index=False))
-    atomic_write_text(md_path, markdown_table(results))
+    markdown = markdown_table(results)
+    paths = [csv_path, md_path, png_path]
+    if realism is not None and not realism.empty:
+        summary_path = out / "realism_summary.csv"
+        atomic_write_text(summary_path, realism.to_csv(index=False))
+        title = "## Realism (`behave report` per group; the full reports in realism/)"
+        markdown += f"\n{title}\n\n{realism_markdown(realism)}"
+        paths.insert(2, summary_path)
+    atomic_write_text(md_path, markdown)
     plot_metrics(results, png_path)
-    return [csv_path, md_path, png_path]
+    return paths
 
 
 def markdown_table(results: pd.DataFrame) -> str:

@@ -32,7 +32,7 @@ from behaviors.errors import BehaveError
 from behaviors.files import atomic_path, atomic_write_text, ensure_writable_dir
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Mapping, Sequence
 
     from matplotlib.figure import Figure
 
@@ -48,6 +48,9 @@ LAT_ACCEL_LIMIT = 1.5  # m/s^2
 FOLLOW_MIN_SPEED = 5.0  # m/s: headways of slower cars are queueing, not following
 LEADER_RANGE = 250.0  # m
 THW_LIMIT = 1.0  # s
+OFF_CENTRE_LIMIT = 0.5  # m from the lane centre
+RUN_GAP_S = 3600.0
+"""s between stacked runs (`stack_runs`): no car of one run is seen beside a car of another."""
 TTC_LIMIT = 3.0  # s
 PASS_MARGIN = 10.0
 """m beyond a car length within which pairs are tracked for passes; widened to 25 m/s x step for
@@ -58,6 +61,10 @@ OTHER_GROUP = "sumo"
 AGENT_COLUMNS = ("id", "vtype", "depart_s", "end_s", "end_reason", "longest_standstill_s")
 STANDSTILL_REPORTED_S = 30.0
 REQUIRED = ("id", "time", "lane", "pos", "speed")
+
+
+class NothingToMeasure(BehaveError):
+    """No car drove longer than the seconds left out at its start."""
 
 
 @dataclass(frozen=True)
@@ -157,7 +164,8 @@ def prepare(
     """One row per FCD record, sorted by vehicle and time, with what every measure needs.
 
     `seg` numbers runs of records of one car without a time gap; `lat` is the lateral position
-    from the outer border; `track` a lateral position continuous across edges (`_track`);
+    from the outer border; `pos_lat` the offset from the lane centre (NaN if the FCD has no
+    posLat); `track` a lateral position continuous across edges (`_track`);
     `road_edge`/`road_rank` carry the last normal lane through junctions; `settled` is false
     during a car's first `skip_s`.
     """
@@ -184,7 +192,8 @@ def prepare(
     layout = _lane_layout(pd.Index(lane_ids.astype(str)), lanes).iloc[lane]
     internal, rank = layout["internal"].to_numpy(), layout["rank"].to_numpy()
     edge = layout["edge"].to_numpy()
-    pos_lat = df["posLat"].fillna(0.0).to_numpy(float) if "posLat" in df.columns else np.zeros(len(df))
+    offset = df["posLat"].to_numpy(float) if "posLat" in df.columns else np.full(len(df), np.nan)
+    pos_lat = np.nan_to_num(offset)
     lat = layout["centre"].to_numpy() + pos_lat
     by_vehicle = pd.Series(vehicle)
     first = np.flatnonzero(new)
@@ -192,7 +201,8 @@ def prepare(
     out = pd.DataFrame({
         "vehicle": vehicle, "seg": seg, "time": time, "dt": dt,
         "speed": df["speed"].to_numpy(float), "pos": df["pos"].to_numpy(float),
-        "lane": lane, "lat": lat, "track": _track(seg, edge, lat, pos_lat, layout["width"].to_numpy()),
+        "lane": lane, "lat": lat, "pos_lat": offset, "internal": internal,
+        "track": _track(seg, edge, lat, pos_lat, layout["width"].to_numpy()),
         "road_edge": pd.Series(np.where(internal, np.nan, edge)).groupby(by_vehicle).ffill().to_numpy(),
         "road_rank": pd.Series(np.where(internal, np.nan, rank)).groupby(by_vehicle).ffill().to_numpy(),
         "settled": time - time[first][np.cumsum(new) - 1] >= skip_s,
@@ -258,24 +268,33 @@ def lateral_motion(tr: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame({"accel": accel, "jerk": jerk})
 
 
+def _sideways_runs(tr: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Per record: its sideways direction (-1, 0 or 1; still below SIDEWAYS_SPEED) and the number
+    of its run (consecutive records of one segment moving the same way)."""
+    seg, track, dt = tr["seg"].to_numpy(), tr["track"].to_numpy(), tr["dt"].to_numpy()
+    sideways = (track - _shift(track, seg, 1)) / dt
+    moving = np.where(np.abs(sideways) > SIDEWAYS_SPEED, np.sign(sideways), 0.0)
+    run_start = np.ones(len(tr), bool)
+    run_start[1:] = (moving[1:] != moving[:-1]) | (seg[1:] != seg[:-1])
+    return moving, np.cumsum(run_start) - 1
+
+
 def lane_changes(tr: pd.DataFrame, accel: np.ndarray) -> pd.DataFrame:
     """One row per lane change of a settled car (its lane rank changes between two records on
-    the same edge), with its duration and peak |lateral acceleration|.
+    the same edge), with its duration, peak |lateral acceleration| and sideways run.
 
     The duration is the run of records moving sideways (faster than SIDEWAYS_SPEED) towards the
     new lane, from the record before the run to its last record; the peak is over that run.
+    `run` numbers that run as `_sideways_runs` does (-1: the car did not move towards the lane).
     """
-    seg, rank, track = tr["seg"].to_numpy(), tr["road_rank"].to_numpy(), tr["track"].to_numpy()
+    seg, rank = tr["seg"].to_numpy(), tr["road_rank"].to_numpy()
     time, dt, road_edge = tr["time"].to_numpy(), tr["dt"].to_numpy(), tr["road_edge"].to_numpy()
     prev_rank = _shift(rank, seg, 1)
     same_edge = _shift(road_edge, seg, 1) == road_edge
     change = same_edge & (rank != prev_rank) & ~np.isnan(prev_rank) & tr["settled"].to_numpy()
     direction = np.sign(rank - prev_rank)
-    sideways = (track - _shift(track, seg, 1)) / dt
-    moving = np.where(np.abs(sideways) > SIDEWAYS_SPEED, np.sign(sideways), 0.0)
-    run_start = np.ones(len(tr), bool)
-    run_start[1:] = (moving[1:] != moving[:-1]) | (seg[1:] != seg[:-1])
-    run = np.cumsum(run_start) - 1
+    moving, run = _sideways_runs(tr)
+    run_start = np.diff(run, prepend=-1) > 0
     starts = np.flatnonzero(run_start)
     ends = np.append(starts[1:], len(tr)) - 1
     begin = time[starts] - dt[starts]
@@ -287,7 +306,19 @@ def lane_changes(tr: pd.DataFrame, accel: np.ndarray) -> pd.DataFrame:
         "group": tr["group"].to_numpy()[idx],
         "duration": np.where(along, time[ends[runs]] - begin[runs], np.nan),
         "peak_accel": np.where(along, peak[runs], np.nan),
+        "run": np.where(along, runs, -1),
     })  # fmt: skip
+
+
+def lane_offsets(tr: pd.DataFrame, changes: pd.DataFrame) -> pd.DataFrame:
+    """|offset from the lane centre| (posLat) of every settled record on a normal lane outside the
+    sideways runs of lane changes (junction lanes join lanes of other widths; a lane change
+    leaves the centre on purpose)."""
+    _, run = _sideways_runs(tr)
+    offset = np.abs(tr["pos_lat"].to_numpy())
+    keep = tr["settled"].to_numpy() & ~tr["internal"].to_numpy() & ~np.isin(run, changes["run"])
+    keep &= ~np.isnan(offset)
+    return pd.DataFrame({"group": tr["group"].to_numpy()[keep], "offset": offset[keep]})
 
 
 def headways(tr: pd.DataFrame) -> pd.DataFrame:
@@ -393,6 +424,26 @@ def read_agents(path: Path) -> pd.DataFrame | None:
     return agents
 
 
+def stack_runs(
+    runs: Sequence[tuple[pd.DataFrame, pd.DataFrame | None]],
+) -> tuple[pd.DataFrame, pd.DataFrame | None]:
+    """Several runs (FCD, per-agent table or None) as one to measure together: ids get the run's
+    number (`3:agent_0`) and each run's clock starts RUN_GAP_S after the previous run ended, so
+    that no car is another run's leader or pass. The agent tables are kept only if every run has one."""
+    fcds, tables, start = [], [], 0.0
+    for k, (fcd, agents) in enumerate(runs):
+        shift = start - float(fcd["time"].min())
+        fcds.append(fcd.assign(id=f"{k}:" + fcd["id"].astype(str), time=fcd["time"] + shift))
+        if agents is not None:
+            moved = {"depart_s": agents["depart_s"] + shift, "end_s": agents["end_s"] + shift}
+            tables.append(agents.assign(id=f"{k}:" + agents["id"].astype(str), **moved))
+        start = float(fcds[-1]["time"].max()) + RUN_GAP_S
+    if not fcds:
+        raise BehaveError("no runs to measure")
+    both = len(tables) == len(fcds)
+    return pd.concat(fcds, ignore_index=True), pd.concat(tables, ignore_index=True) if both else None
+
+
 def losses(agents: pd.DataFrame, group_by: str = "type") -> pd.DataFrame:
     """Per group: collisions, off-tracks and removals without progress per agent-hour (over the
     agents' whole runs), and how many agents stood still STANDSTILL_REPORTED_S or longer."""
@@ -430,6 +481,12 @@ METRICS = (
     Metric("lat_jerk_p95", "|lateral jerk| p95 [m/s^3]"),
     Metric("lc_peak_accel_median", "peak |lateral accel| per lane change, median [m/s^2]", "0.5-1"),
     Metric("lc_duration_median", "lane-change duration, median [s]", "5-6 (VTTI mean 6.28)"),
+    Metric("lane_offset_mean", "|offset from the lane centre| outside lane changes, mean [m]"),
+    Metric(
+        "off_centre_share",
+        f"time > {OFF_CENTRE_LIMIT:g} m off the lane centre (outside lane changes)",
+        share=True,
+    ),
     Metric("thw_median", "time headway, median [s]", "1-2 (freeway rush hour)"),
     Metric("thw_p5", "time headway, 5th percentile [s]", "~1 (lower limit)"),
     Metric(
@@ -490,7 +547,7 @@ def measure(
     motion = lateral_motion(tr)
     settled = tr["settled"].to_numpy()
     if not settled.any():
-        raise BehaveError(
+        raise NothingToMeasure(
             f"no vehicle drove longer than {skip_s:g} s: nothing to measure (try a smaller --skip-s)"
         )
     live = tr[settled].assign(accel=motion["accel"].abs()[settled], jerk=motion["jerk"].abs()[settled])
@@ -500,6 +557,7 @@ def measure(
     changes = lane_changes(tr, motion["accel"].to_numpy())
     follow = headways(tr)
     made = passes(tr)
+    offsets = lane_offsets(tr, changes)
     n_changes = changes.groupby("group").size().reindex(km.index, fill_value=0)
     rows = {
         "vehicles": by["vehicle"].nunique(),
@@ -512,6 +570,8 @@ def measure(
         "lat_jerk_p95": by["jerk"].quantile(0.95),
         "lc_peak_accel_median": changes.groupby("group")["peak_accel"].median(),
         "lc_duration_median": changes.groupby("group")["duration"].median(),
+        "lane_offset_mean": offsets.groupby("group")["offset"].mean(),
+        "off_centre_share": (offsets["offset"] > OFF_CENTRE_LIMIT).groupby(offsets["group"]).mean(),
         "thw_median": follow.groupby("group")["thw"].median(),
         "thw_p5": follow.groupby("group")["thw"].quantile(0.05),
         "thw_below_limit": (follow["thw"] < THW_LIMIT).groupby(follow["group"]).mean(),
@@ -525,6 +585,8 @@ def measure(
     lane_use = lane_use.div(lane_use.sum(axis=1), axis=0).reindex(groups).T
     lane_use.index = [f"lane_{int(rank)}_share" for rank in lane_use.index]
     notes = [_lane_note(lanes), f"each car's first {skip_s:g} s left out"]
+    if tr["pos_lat"].isna().all():
+        notes.append("lane centring unknown: the FCD has no posLat")
     if agents is not None:
         loss = losses(agents, group_by).reindex(groups).T
     else:
@@ -591,8 +653,9 @@ def rows(report: Report) -> list[list[str]]:
     ]
 
 
-def write_report(report: Report, out: Path, title: str) -> list[Path]:
-    """realism.csv (raw numbers), realism.md and realism.png in `out`, each complete or absent."""
+def write_report(report: Report, out: Path, title: str, *, picture: bool = True) -> list[Path]:
+    """realism.csv (raw numbers), realism.md and (if `picture`: it takes ~2 s) realism.png in `out`,
+    each complete or absent."""
     out = Path(out)
     ensure_writable_dir(out)
     groups = list(report.table.columns)
@@ -606,12 +669,14 @@ def write_report(report: Report, out: Path, title: str) -> list[Path]:
     lines = [f"# Realism report: {title}", "", *(f"- {note}" for note in report.notes), ""]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(row) + " |" for row in rows(report)]
-    paths = [out / "realism.csv", out / "realism.md", out / "realism.png"]
+    paths = [out / "realism.csv", out / "realism.md"]
     atomic_write_text(paths[0], buffer.getvalue())
     atomic_write_text(paths[1], "\n".join(lines) + "\n")
-    with atomic_path(paths[2]) as tmp:
+    if not picture:
+        return paths
+    with atomic_path(out / "realism.png") as tmp:
         _figure(report, title).savefig(tmp, format="png", dpi=100)
-    return paths
+    return [*paths, out / "realism.png"]
 
 
 def _finite(values: np.ndarray | None) -> np.ndarray:

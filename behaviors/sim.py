@@ -163,14 +163,8 @@ class SumoSim:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def reload(self, seed: int) -> None:
-        """Fast reset: same network and files, new seed, time 0 (libsumo's `load`)."""
-        options = SimOptions(**{**self.options.__dict__, "seed": seed})
-        self._sumo.load(options.command()[1:])
-        self.options = options
-
     def restart(self, options: SimOptions) -> None:
-        """Load another network (and files) into the running simulation: a new episode elsewhere."""
+        """A new episode at time 0 (libsumo's fast `load`): another seed, network, files or outputs."""
         self._sumo.load(options.command()[1:])
         self.options = options
         self.step_length = options.step_length

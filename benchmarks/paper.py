@@ -32,9 +32,17 @@ import torch
 
 from behaviors.env import BehaveEnv, EnvConfig
 from behaviors.errors import BehaveError
-from behaviors.evaluate import EvaluationPlan, checkpoint_policy, evaluate, run_plan, write_report
+from behaviors.evaluate import (
+    EvaluationPlan,
+    checkpoint_policy,
+    evaluate,
+    realism_markdown,
+    run_plan,
+    write_report,
+)
 from behaviors.files import atomic_write_text, ensure_writable_dir
 from behaviors.metrics import mean_rows
+from behaviors.realism import SKIP_S
 from behaviors.train import TrainConfig, prepare_run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -231,11 +239,32 @@ def fits(config: EnvConfig) -> str | None:
     return None
 
 
+REALISM = 1
+"""Version of the realism rows in the cached plan evaluations (older caches lack them: run again)."""
+
+
 def plan_df(
-    policies: list[tuple[str, Path | None]], settings: list[tuple[str, EnvConfig]], episodes: int, seed: int
-) -> list[dict[str, Any]]:
-    df = run_plan(EvaluationPlan(policies, settings, episodes, seed))
-    return df.to_dict("records")
+    policies: list[tuple[str, Path | None]],
+    settings: list[tuple[str, EnvConfig]],
+    episodes: int,
+    seed: int,
+    out: Path,
+) -> dict[str, list[dict[str, Any]]]:
+    """The paper's metrics and the realism table of a plan, its realism reports (no pictures: they
+    would cost ~2 s each) in out/realism/<policy>/<setting>/."""
+    results, realism = run_plan(EvaluationPlan(policies, settings, episodes, seed), realism=out / "realism",
+                                pictures=False)  # fmt: skip
+    return {"results": results.to_dict("records"), "realism": realism.to_dict("records")}
+
+
+def cached_plan(
+    cache: Cache, name: str, params: dict[str, Any], plan: Callable[[Path], Any], out: Path
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """A plan evaluation from the cache (or run now), its report written to `out`: (results, realism)."""
+    value = cache.get(name, {**params, "realism": REALISM}, lambda: plan(out))
+    results, realism = pd.DataFrame(value["results"]), pd.DataFrame(value["realism"])
+    write_report(results, out, realism)
+    return results, realism
 
 
 def numbered_checkpoints(run: Path) -> list[tuple[int, Path]]:
@@ -387,13 +416,13 @@ def run_paper(args: argparse.Namespace) -> None:
             too_many.append((n, problem))
         else:
             lk_settings.append((f"{n} agents", cfg))
-    t3 = cache.get(
+    t3_df, t3_real = cached_plan(
+        cache,
         "t3",
         {"episodes": ev, "seed": seed, "settings": [s for s, _ in lk_settings]},
-        lambda: plan_df([("PS-DDPG", lk_final), (SUMO_LABEL, None)], lk_settings, ev, seed),
+        lambda out: plan_df([("PS-DDPG", lk_final), (SUMO_LABEL, None)], lk_settings, ev, seed, out),
+        runs / "eval" / "table3",
     )
-    t3_df = pd.DataFrame(t3)
-    write_report(t3_df, runs / "eval" / "table3")
 
     # Stage 3: episodes to converge, comparison figure, rear agents
     conv_env = EnvConfig(scenario=scen, agents=6, max_steps=steps)
@@ -422,13 +451,13 @@ def run_paper(args: argparse.Namespace) -> None:
     cmp_policies = [
         (lab, runs / f"compare-{a}" / "checkpoints" / "final.pt") for lab, a in list(algos.items())[:2]
     ]
-    cmp = cache.get(
+    cmp_df, _ = cached_plan(
+        cache,
         "compare-figure",
         {"episodes": ev, "seed": seed},
-        lambda: plan_df(cmp_policies, cmp_settings, ev, seed),
+        lambda out: plan_df(cmp_policies, cmp_settings, ev, seed, out),
+        runs / "eval" / "compare",
     )
-    cmp_df = pd.DataFrame(cmp)
-    write_report(cmp_df, runs / "eval" / "compare")
     rear = {}
     for label in ("multi-DDPG", "PS-DDPG"):
         m = pd.read_csv(runs / f"compare-{algos[label]}" / "metrics.csv").tail(10)
@@ -451,13 +480,13 @@ def run_paper(args: argparse.Namespace) -> None:
         else:
             ot_settings.append((f"{n} agents", cfg))
     ot_final = runs / "overtaking" / "checkpoints" / "final.pt"
-    t5 = cache.get(
+    t5_df, t5_real = cached_plan(
+        cache,
         "t5",
         {"episodes": ev, "seed": seed, "settings": [s for s, _ in ot_settings]},
-        lambda: plan_df([("PS-DDPG", ot_final), (SUMO_LABEL, None)], ot_settings, ev, seed),
+        lambda out: plan_df([("PS-DDPG", ot_final), (SUMO_LABEL, None)], ot_settings, ev, seed, out),
+        runs / "eval" / "table5",
     )
-    t5_df = pd.DataFrame(t5)
-    write_report(t5_df, runs / "eval" / "table5")
 
     # Stage 5: Table VI
     mb_final = runs / "multi" / "checkpoints" / "final.pt"
@@ -470,13 +499,13 @@ def run_paper(args: argparse.Namespace) -> None:
         )
         for p in "ABC"
     ]
-    t6 = cache.get(
+    t6_df, t6_real = cached_plan(
+        cache,
         "t6",
         {"episodes": ev, "seed": seed},
-        lambda: plan_df([("PS-DDPG", mb_final), (SUMO_LABEL, None)], mb_settings, ev, seed),
+        lambda out: plan_df([("PS-DDPG", mb_final), (SUMO_LABEL, None)], mb_settings, ev, seed, out),
+        runs / "eval" / "table6",
     )
-    t6_df = pd.DataFrame(t6)
-    write_report(t6_df, runs / "eval" / "table6")
 
     # --- the page ---
     link = {}
@@ -656,6 +685,7 @@ def render(args: argparse.Namespace, v: dict[str, Any]) -> str:
     )
     if link.get("table3"):
         out += [f"![Table III bar charts]({link['table3']})", ""]
+    out += realism_section(v["t3_real"], "the lane-keeping policy", runs / "eval" / "table3")
 
     # Stage 3
     out += ["## PS-DDPG vs DDPG vs multi-DDPG (lane keeping)", ""]
@@ -867,6 +897,7 @@ def render(args: argparse.Namespace, v: dict[str, Any]) -> str:
     )
     if link.get("table5"):
         out += [f"![Table V bar charts]({link['table5']})", ""]
+    out += realism_section(v["t5_real"], "the overtaking policy", runs / "eval" / "table5")
 
     # Table VI
     t6 = v["t6_df"]
@@ -940,7 +971,20 @@ def render(args: argparse.Namespace, v: dict[str, Any]) -> str:
     )
     if link.get("table6"):
         out += [f"![Table VI bar charts]({link['table6']})", ""]
+    out += realism_section(v["t6_real"], "the multi-behaviour policy", runs / "eval" / "table6")
     return "\n".join(out)
+
+
+def realism_section(realism: pd.DataFrame, policy: str, where: Path) -> list[str]:
+    """The realism table of a table's runs (not part of the paper), below that table."""
+    return [
+        f"Realism of the same runs of {policy} and SUMO's drivers (`behave report` measures per group, "
+        f"each car's first {SKIP_S:g} s left out; README, `behave report`, for the definitions and the "
+        f"naturalistic figures; every measure in `{where}/realism/`). Not in the paper: its reward "
+        "has no lane, headway or comfort term, and these numbers show how far that is from traffic.",
+        "",
+        realism_markdown(realism),
+    ]
 
 
 if __name__ == "__main__":

@@ -35,12 +35,16 @@ def evaluate_command(
         ),
     ] = None,
     shield: Annotated[bool, typer.Option(help="drive through populate's safety shield")] = False,
+    realism: Annotated[
+        bool, typer.Option(help="record SUMO's FCD and write the realism report of each policy and setting")
+    ] = True,
     out: Annotated[Path, typer.Option(help="directory for results.csv, results.md, metrics.png")] = Path(
         "runs/evaluate"
     ),
 ) -> None:
     """Average the paper's metrics over episodes for every policy and setting."""
-    from behaviors.evaluate import PAPER_METRICS, plan_evaluation, run_plan, write_report  # torch, pandas
+    from behaviors.evaluate import PAPER_METRICS, plan_evaluation, realism_markdown, run_plan, write_report
+    from behaviors.realism import SKIP_S
 
     plan = plan_evaluation(
         list(checkpoints or []), agents=parse_ints(agents), episodes=episodes, behaviour=behaviour,
@@ -48,9 +52,18 @@ def evaluate_command(
         seed=seed, max_steps=max_steps, baseline=baseline, opponents=opponents, shield=shield,
     )  # fmt: skip
     console = Console()
-    for name in ("results.csv", "results.md", "metrics.png"):  # found unwritable now, not after the run
+    seconds = max_steps * plan.settings[0][1].step_length
+    if realism and seconds <= SKIP_S:
+        console.print(f"no realism report: episodes of {seconds:g} s, and each car's first {SKIP_S:g} s are "
+                      "left out", style="yellow")  # fmt: skip
+        realism = False
+    for name in ("results.csv", "results.md", "metrics.png", "realism_summary.csv"):  # unwritable: now
         check_output_path(out / name)
-    results = run_plan(plan, on_setting=lambda p, s: console.print(f"evaluating {p}: {s}", style="dim"))
+    results, realism_table = run_plan(
+        plan,
+        on_setting=lambda p, s: console.print(f"evaluating {p}: {s}", style="dim"),
+        realism=out / "realism" if realism else None,
+    )
     table = Table(title=f"behave evaluate ({episodes} episodes per setting)")
     columns = ["policy", "setting", *(m for m, _ in PAPER_METRICS), "off_tracks", "mean_speed_frac"]
     columns += [
@@ -63,7 +76,10 @@ def evaluate_command(
     for _, row in results.iterrows():
         table.add_row(*(row[c] if isinstance(row[c], str) else f"{row[c]:,.2f}" for c in columns))
     console.print(table)
-    for path in write_report(results, out):
+    if not realism_table.empty:
+        typer.echo(f"\nRealism (full reports in {out / 'realism'}/<policy>/<setting>/):\n")
+        typer.echo(realism_markdown(realism_table))
+    for path in write_report(results, out, realism_table):
         typer.echo(f"wrote {path}")
 
 

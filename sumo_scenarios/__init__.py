@@ -25,7 +25,6 @@ from sumo_scenarios.build import (
     build_named,
     build_ring,
     build_training_roads,
-    training_road_name,
 )
 
 __all__ = [
@@ -142,19 +141,18 @@ def build_scenarios(out_root: Path | None = None, names: Iterable[str] = SCENARI
 def training_roads() -> list[Scenario]:
     """The closed roads the traffic driver trains on (built by `build_training_roads`, committed)."""
     roads = []
-    for lanes, width, radius in TRAINING_ROADS:
-        name = training_road_name(lanes, width, radius)
-        folder = data_dir() / name
+    for spec in TRAINING_ROADS:
+        folder = data_dir() / spec.name
         road = Scenario(
-            name=name,
-            net=folder / f"{name}.net.xml",
-            routes=folder / f"{name}.rou.xml",
+            name=spec.name,
+            net=folder / f"{spec.name}.net.xml",
+            routes=folder / f"{spec.name}.rou.xml",
             vtypes=data_dir() / "common" / VTYPES_FILE,
             route_id="loop",
             looping=True,
-            description=f"closed {lanes}-lane road, {width:g} m lanes, curves of {radius:.0f} m",
+            description=spec.description,
         )
         if not road.net.exists():
-            raise BehaveError(f"training road {name} is missing: run `behave scenario build`")
+            raise BehaveError(f"training road {spec.name} is missing: run `behave scenario build`")
         roads.append(road)
     return roads

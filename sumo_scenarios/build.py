@@ -283,6 +283,22 @@ def shared_vtypes(out_dir: Path) -> Path:
     return path
 
 
+def write_plain(
+    out_dir: Path,
+    name: str,
+    edges: Sequence[EdgeSpec],
+    *,
+    lanes: int,
+    lane_width: float,
+    speed: float,
+    closed: bool,
+    location: ET.Element | None = None,
+) -> None:
+    write_nodes(out_dir / f"{name}.nod.xml", edges, location)
+    write_edges(out_dir / f"{name}.edg.xml", edges, lanes, lane_width, speed)
+    write_connections(out_dir / f"{name}.con.xml", edges, lanes, closed)
+
+
 def build_network(
     out_dir: Path,
     name: str,
@@ -295,10 +311,73 @@ def build_network(
     location: ET.Element | None = None,
 ) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_nodes(out_dir / f"{name}.nod.xml", edges, location)
-    write_edges(out_dir / f"{name}.edg.xml", edges, lanes, lane_width, speed)
-    write_connections(out_dir / f"{name}.con.xml", edges, lanes, closed)
+    write_plain(out_dir, name, edges, lanes=lanes, lane_width=lane_width, speed=speed, closed=closed,
+                location=location)  # fmt: skip
     return netconvert(out_dir, name)
+
+
+RAMP_SPEED = 22.22
+"""m/s (80 km/h) on the training roads' ramps."""
+
+
+def ramp_edges(ring: Sequence[EdgeSpec]) -> tuple[EdgeSpec, EdgeSpec, str, str]:
+    """An on-ramp into the end node of the ring's first edge and an exit from the end node of the
+    first edge of its second straight (both straights run through ring_edges' node order), each
+    250 m long, reaching the road from outside at a shallow angle; and the edges they join/leave."""
+    first = ring[0]
+    (x0, y0), (x1, y1) = first.shape[0], first.shape[-1]
+    ux, uy = (x1 - x0) / math.hypot(x1 - x0, y1 - y0), (y1 - y0) / math.hypot(x1 - x0, y1 - y0)
+    out_x, out_y = uy, -ux  # the right of the direction of travel: outside a counter-clockwise oval
+    on_ramp = EdgeSpec("ramp_in", "ramp_start", first.dst, [
+        (x1 - 250 * ux + 30 * out_x, y1 - 250 * uy + 30 * out_y),
+        (x1 - 100 * ux + 10 * out_x, y1 - 100 * uy + 10 * out_y),
+        (x1, y1),
+    ])  # fmt: skip
+    straights = [k for k, e in enumerate(ring) if len(e.shape) == 2]
+    second = next(ring[k] for k in straights if ring[k].shape[0][1] * y0 < 0)  # on the other straight
+    (a0, b0), (a1, b1) = second.shape[0], second.shape[-1]
+    vx, vy = (a1 - a0) / math.hypot(a1 - a0, b1 - b0), (b1 - b0) / math.hypot(a1 - a0, b1 - b0)
+    exit_ = EdgeSpec("ramp_out", second.dst, "ramp_end", [
+        (a1, b1),
+        (a1 + 100 * vx + 10 * vy, b1 + 100 * vy - 10 * vx),
+        (a1 + 250 * vx + 30 * vy, b1 + 250 * vy - 30 * vx),
+    ])  # fmt: skip
+    joined = ring[(ring.index(first) + 1) % len(ring)].id
+    return on_ramp, exit_, joined, second.id
+
+
+def add_ramps(out_dir: Path, name: str, ring: Sequence[EdgeSpec]) -> None:
+    """Add ramp_in (merging into lane 0 of the next ring edge) and ramp_out (leaving from lane 0)
+    to the plain XML of a ring written by `write_plain`."""
+    on_ramp, exit_, joined, left = ramp_edges(ring)
+    files = {kind: out_dir / f"{name}.{kind}.xml" for kind in ("nod", "edg", "con")}
+    trees = {kind: ET.parse(path) for kind, path in files.items()}
+    for edge, node in ((on_ramp, on_ramp.src), (exit_, exit_.dst)):
+        x, y = edge.shape[0] if node == edge.src else edge.shape[-1]
+        ET.SubElement(trees["nod"].getroot(), "node", id=node, x=fmt(x), y=fmt(y), type="priority")
+        ET.SubElement(trees["edg"].getroot(), "edge", {
+            "id": edge.id, "from": edge.src, "to": edge.dst, "numLanes": "1", "speed": fmt(RAMP_SPEED),
+            "width": "3.5", "shape": fmt_shape(edge.shape),
+        })  # fmt: skip
+    connections = trees["con"].getroot()
+    for src, dst in ((on_ramp.id, joined), (left, exit_.id)):
+        ET.SubElement(connections, "connection", {"from": src, "to": dst, "fromLane": "0", "toLane": "0"})
+    for kind, tree in trees.items():
+        write_xml(tree.getroot(), files[kind])
+
+
+def add_ramp_flow(routes: Path, ring: Sequence[EdgeSpec]) -> None:
+    """RAMP_FLOW SUMO cars per hour join by the on-ramp, drive most of a lap and leave by the exit."""
+    on_ramp, exit_, joined, left = ramp_edges(ring)
+    ids = [e.id for e in ring]
+    start, end = ids.index(joined), ids.index(left)
+    through = ids[start : end + 1] if start <= end else ids[start:] + ids[: end + 1]
+    tree = ET.parse(routes)
+    root = tree.getroot()
+    ET.SubElement(root, "route", id="joining", edges=" ".join([on_ramp.id, *through, exit_.id]))
+    ET.SubElement(root, "flow", id="ramp", route="joining", type="behave_background", begin="0",
+                  end=fmt(LOOP_SECONDS), vehsPerHour=str(RAMP_FLOW), departSpeed="max")  # fmt: skip
+    write_xml(root, routes)
 
 
 def build_ring(
@@ -311,13 +390,23 @@ def build_ring(
     lane_width: float = 3.5,
     edge_length: float = 300.0,
     speed: float = 33.33,
+    ramps: bool = False,
 ) -> Scenario:
-    """A closed oval (two straights, two semicircles); the route `loop` circles it for 100,000 s."""
+    """A closed oval (two straights, two semicircles); the route `loop` circles it for 100,000 s.
+
+    With `ramps`, SUMO's cars also join from an on-ramp on the first straight (merging into
+    lane 0 at a junction, yielding to the ring) and leave by an exit on the second."""
     edges = ring_edges(radius, straight, edge_length)
-    net = build_network(out_dir, name, edges, lanes=lanes, lane_width=lane_width, speed=speed, closed=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_plain(out_dir, name, edges, lanes=lanes, lane_width=lane_width, speed=speed, closed=True)
+    if ramps:
+        add_ramps(out_dir, name, edges)
+    net = netconvert(out_dir, name)
     lap = 2 * straight + 2 * math.pi * radius
     routes = out_dir / f"{name}.rou.xml"
     write_routes(routes, "loop", [e.id for e in edges], math.ceil(LOOP_SECONDS * LOOP_MAX_SPEED / lap))
+    if ramps:
+        add_ramp_flow(routes, edges)
     return Scenario(
         name=name,
         net=net,
@@ -407,32 +496,54 @@ def build_named(name: str, out_dir: Path) -> Scenario:
     raise BehaveError(f"no builder for scenario '{name}'")
 
 
-TRAINING_ROADS: tuple[tuple[int, float, float], ...] = (
-    (2, 3.2, 400.0),
-    (3, 3.5, 300.0),
-    (3, 3.0, 600.0),
-    (4, 3.75, 500.0),
-    (5, 3.5, 800.0),
+@dataclass(frozen=True)
+class TrainingRoad:
+    """One closed road of the traffic driver's training family."""
+
+    lanes: int
+    lane_width: float  # m
+    radius: float  # m, of both curves
+    ramps: bool = False  # an on-ramp and an exit on the straights, with SUMO traffic using them
+
+    @property
+    def name(self) -> str:
+        return f"road_{self.lanes}x{self.lane_width:g}_r{self.radius:.0f}" + ("_ramps" if self.ramps else "")
+
+    @property
+    def description(self) -> str:
+        ramps = ", an on-ramp and an exit" if self.ramps else ""
+        lanes = f"{self.lanes}-lane road, {self.lane_width:g} m lanes"
+        return f"closed {lanes}, curves of {self.radius:.0f} m{ramps}"
+
+
+TRAINING_ROADS: tuple[TrainingRoad, ...] = (
+    TrainingRoad(2, 3.2, 400.0),
+    TrainingRoad(3, 3.5, 300.0),
+    TrainingRoad(3, 3.0, 600.0),
+    TrainingRoad(4, 3.75, 500.0),
+    TrainingRoad(5, 3.5, 800.0),
+    TrainingRoad(2, 3.5, 500.0, ramps=True),
+    TrainingRoad(3, 3.75, 700.0, ramps=True),
 )
-"""(lanes, lane width m, curve radius m) of the closed roads the traffic driver trains on."""
+"""The closed roads the traffic driver trains on: 2-5 lanes, 3.0-3.75 m, curves of 300-800 m."""
 
-
-def training_road_name(lanes: int, lane_width: float, radius: float) -> str:
-    return f"road_{lanes}x{lane_width:g}_r{radius:.0f}"
+RAMP_FLOW = 700
+"""veh/h joining from the on-ramp of a training road and leaving by its exit."""
 
 
 def build_training_roads(root: Path) -> list[Scenario]:
-    """The family of closed multi-lane roads (2-5 lanes, 3.0-3.75 m, curves of 300-800 m)
-    into root/<name>/: SUMO's cars circle them forever, so every episode has traffic."""
+    """The family of closed multi-lane roads into root/<name>/: SUMO's cars circle them forever,
+    so every episode has traffic; on the roads with ramps more of it joins and leaves."""
     built = []
-    for lanes, width, radius in TRAINING_ROADS:
-        name = training_road_name(lanes, width, radius)
-        out_dir = root / name
+    for road in TRAINING_ROADS:
+        out_dir = root / road.name
         if out_dir.exists():
             shutil.rmtree(out_dir)
-        built.append(
-            build_ring(out_dir, name=name, radius=radius, straight=600.0, lanes=lanes, lane_width=width)
-        )
+        ring = build_ring(
+            out_dir, name=road.name, radius=road.radius, straight=600.0, lanes=road.lanes,
+            lane_width=road.lane_width, ramps=road.ramps,
+        )  # fmt: skip
+        built.append(replace(ring, description=road.description))
     return built
 
 
