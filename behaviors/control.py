@@ -36,6 +36,8 @@ SIGNAL_SECONDS = 5.0
 route (the policies never saw a traffic light), and gives it back once none is."""
 JUNCTION_LEADS_ON = 1e4
 """m: inside a junction every lane counts as leading on; SUMO is asked again on the next lane."""
+ONE_LANE_HORIZON = 1000.0
+"""m: how far along its route an agent looks for a road of one car lane (SUMO drives it there)."""
 """Driver models: the paper's TORCS state, reward and heading model, or lanes.py's traffic driver."""
 
 
@@ -106,6 +108,9 @@ class AgentRows:
     lane_id: list[str] = field(default_factory=list)  # lane of the cached lane ends
     lane_ends: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # own/fast/slow, lane coords
     best_end: np.ndarray = field(default_factory=lambda: np.zeros(0))  # the edge's farthest-leading lane
+    one_lane_at: np.ndarray = field(
+        default_factory=lambda: np.zeros(0)
+    )  # route's next 1-lane road, lane coords
     handed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # SUMO's driver has the car
     around: Surroundings | None = None
 
@@ -200,6 +205,7 @@ class Fleet:
             lane_id=r.lane_id + [""] * n,
             lane_ends=np.concatenate([r.lane_ends, np.zeros((n, 3))]),
             best_end=np.concatenate([r.best_end, np.zeros(n)]),
+            one_lane_at=np.concatenate([r.one_lane_at, np.full(n, np.inf)]),
             handed=np.concatenate([r.handed, np.zeros(n, bool)]),
         )
 
@@ -326,6 +332,22 @@ class Fleet:
             k = int(index)
             r.lane_ends[i] = [ahead.get(f"{edge}_{j}", 0.0) for j in (k, k + 1, k - 1)]
             r.best_end[i] = max(ahead.values(), default=0.0)
+            r.one_lane_at[i] = self._one_lane_road_at(edge, sim.route_ahead(r.ids[i]))
+
+    def _one_lane_road_at(self, edge: str, route_ahead: list[str]) -> float:
+        """Metres from the start of `edge` to the first road of the route ahead with fewer than two car
+        lanes (a ramp, a slip road, a street), within ONE_LANE_HORIZON; inf if there is none."""
+        edges = self.geometry.edges
+        info = edges.get(edge)
+        at = info.length if info is not None else 0.0
+        for following in route_ahead:
+            if at > ONE_LANE_HORIZON:
+                break
+            info = edges.get(following)
+            if info is None or info.lanes < 2:
+                return at
+            at += info.length
+        return np.inf
 
     def _hand_over(
         self,
@@ -343,7 +365,9 @@ class Fleet:
         r = self.rows
         own_left = r.lane_ends[:, 0] - readings.lane_pos
         reach = np.maximum(HANDOVER_DISTANCE, HANDOVER_SECONDS * r.speed)
+        one_lane_left = r.one_lane_at - readings.lane_pos
         ending = (own_left < reach) & (r.best_end > r.lane_ends[:, 0] + LANE_END_MARGIN)
+        ending |= one_lane_left < reach  # leaving the carriageway: SUMO takes the car to the ramp
         signal = (
             sim.signal_ahead(r.ids, np.maximum(SIGNAL_DISTANCE, SIGNAL_SECONDS * r.speed))
             if sim.has_signals
@@ -354,6 +378,7 @@ class Fleet:
             normal
             & (lanes >= 2)
             & ~((own_left < reach + HANDBACK_MARGIN) & (r.best_end > r.lane_ends[:, 0]))
+            & (one_lane_left >= reach + HANDBACK_MARGIN)
             & ~signal
         )
         give = needs_sumo & ~r.handed

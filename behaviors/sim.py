@@ -258,6 +258,11 @@ class SumoSim:
         has its own length)."""
         return {lane[0]: lane[1] for lane in self._sumo.vehicle.getBestLanes(vid)}
 
+    def route_ahead(self, vid: str) -> list[str]:
+        """The edges of `vid`'s route after the one it is on (or, inside a junction, came from)."""
+        v = self._sumo.vehicle
+        return list(v.getRoute(vid)[v.getRouteIndex(vid) + 1 :])
+
     def set_speed_factor(self, vid: str, factor: float) -> None:
         self._sumo.vehicle.setSpeedFactor(vid, factor)
 

@@ -341,6 +341,31 @@ def test_sumo_chooses_the_speed_of_an_agent_it_took(tmp_path):
         assert speeds_while_handed and max(speeds_while_handed) > 15.0
 
 
+def test_an_agent_leaving_by_a_one_lane_ramp_is_handed_over_before_it_and_not_given_back(tmp_path):
+    """Its lane leads on to the ramp, so only the ramp's single lane told SUMO to take it, at the
+    junction; and a car given back on a lane that soon leaves the carriageway drifted off it."""
+    net = exit_net(tmp_path)
+    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), driver="traffic")
+    options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
+    with SumoSim(options) as sim:
+        sim.add_route("off", ["A", "X"])
+        sim.add_vehicle("agent", "off", "behave_keeper", lane=0, pos=50.0, speed=25.0)
+        sim.step()
+        sim.take_control(["agent"])
+        fleet.add(["agent"], np.array([25.0]), np.array([0.0]), np.array([0.8]))
+        handed_on = []
+        while "agent" in sim.vehicle_ids() and len(handed_on) < 400:
+            lane = sim.read_agents(["agent"]).lane_id[0]
+            fleet.sense(sim, sim.read_vehicles(), True)
+            handed_on.append((lane, bool(fleet.rows.handed[0])))
+            fleet.act(sim, np.array([[0.0, 0.25, 0.0]], np.float32))
+            sim.step()
+        first = next(k for k, (_, handed) in enumerate(handed_on) if handed)
+        assert handed_on[first][0] == "A_0"  # before the ramp
+        assert all(handed for _, handed in handed_on[first:])  # and SUMO keeps it to the end
+        assert fleet.handovers == 1
+
+
 @pytest.mark.parametrize("lefthand", [False, True])
 def test_the_fast_side_is_the_higher_lane_index_in_right_and_left_hand_nets(tmp_path, lefthand):
     """A car in lane 2 beside an agent in lane 1 is on the agent's fast side in both kinds of net."""
