@@ -366,8 +366,10 @@ class Fleet:
         own_left = r.lane_ends[:, 0] - readings.lane_pos
         reach = np.maximum(HANDOVER_DISTANCE, HANDOVER_SECONDS * r.speed)
         one_lane_left = r.one_lane_at - readings.lane_pos
+        # a ramp usually leaves from lane 0: SUMO gets the reach once per lane it has to cross
+        ramp_reach = reach * (1 + np.maximum(r.lane_number, 0))
         ending = (own_left < reach) & (r.best_end > r.lane_ends[:, 0] + LANE_END_MARGIN)
-        ending |= one_lane_left < reach  # leaving the carriageway: SUMO takes the car to the ramp
+        ending |= one_lane_left < ramp_reach  # leaving the carriageway: SUMO takes the car to the ramp
         signal = (
             sim.signal_ahead(r.ids, np.maximum(SIGNAL_DISTANCE, SIGNAL_SECONDS * r.speed))
             if sim.has_signals
@@ -378,7 +380,7 @@ class Fleet:
             normal
             & (lanes >= 2)
             & ~((own_left < reach + HANDBACK_MARGIN) & (r.best_end > r.lane_ends[:, 0]))
-            & (one_lane_left >= reach + HANDBACK_MARGIN)
+            & (one_lane_left >= ramp_reach + HANDBACK_MARGIN)
             & ~signal
         )
         give = needs_sumo & ~r.handed

@@ -44,6 +44,9 @@ START_SPEED_FRACTION = 0.7
 START_HEADWAY = 1.5
 """Seconds of headway between start places at speed (plus two car lengths)."""
 TRAINING_ROADS = "roads"
+TRAINING_ROADS_WITH_RAMPS = "roads+ramps"
+"""The five closed training roads (the shipped traffic policy's), or all seven: two more with ramps."""
+ROAD_FAMILIES = (TRAINING_ROADS, TRAINING_ROADS_WITH_RAMPS)
 """Scenario name of the family of closed roads the traffic driver trains on (sumo_scenarios)."""
 ROUTE_SECONDS = 3600.0
 """Looping routes are unrolled for at least this much driving at 50 m/s."""
@@ -79,9 +82,11 @@ class EnvConfig:
             raise BehaveError(f"unknown placement '{self.placement}' (choose from {', '.join(PLACEMENTS)})")
         if self.driver not in DRIVERS:
             raise BehaveError(f"unknown driver '{self.driver}' (choose from {', '.join(DRIVERS)})")
-        if self.driver == "traffic" and self.scenario not in (TRAINING_ROADS, "ring"):
-            raise BehaveError(f"the traffic driver trains on '{TRAINING_ROADS}' or 'ring' (closed roads)")
-        if isinstance(self.scenario, str) and self.scenario not in (*SCENARIO_NAMES, TRAINING_ROADS):
+        if self.driver == "traffic" and self.scenario not in (*ROAD_FAMILIES, "ring"):
+            raise BehaveError(
+                f"the traffic driver trains on '{TRAINING_ROADS}', '{TRAINING_ROADS_WITH_RAMPS}' or 'ring'"
+            )
+        if isinstance(self.scenario, str) and self.scenario not in (*SCENARIO_NAMES, *ROAD_FAMILIES):
             get_scenario(self.scenario)  # raises with the list of choices
         if self.behaviour == "multi":
             if self.overtakers < 0 or self.keepers < 0 or self.overtakers + self.keepers == 0:

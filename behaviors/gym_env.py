@@ -17,13 +17,13 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from behaviors.env import TRAINING_ROADS, make_env
+from behaviors.env import ROAD_FAMILIES, TRAINING_ROADS, make_env
 from behaviors.errors import BehaveError
 from behaviors.render import RENDER_MODES
 from behaviors.traffic_env import NoRoomError, TrafficEnv
 
 ENV_ID = "behave/Traffic-v0"
-SCENARIOS = (TRAINING_ROADS, "ring")
+SCENARIOS = (*ROAD_FAMILIES, "ring")
 BEHAVIOURS = ("lanekeeping", "overtaking")
 RESET_TRIES = 10
 """Episodes drawn before giving up when traffic leaves the car no free place to enter."""

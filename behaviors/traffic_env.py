@@ -19,7 +19,8 @@ from behaviors.env import (
     BACKGROUND_TYPE,
     KEEPER_TYPE,
     OVERTAKER_TYPE,
-    TRAINING_ROADS,
+    ROAD_FAMILIES,
+    TRAINING_ROADS_WITH_RAMPS,
     BehaveEnv,
     EnvConfig,
     StepBatch,
@@ -72,7 +73,9 @@ class TrafficEnv(BehaveEnv):
         config.validate()
         self.config = config
         self.roads: list[Scenario] = (
-            training_roads() if config.scenario == TRAINING_ROADS else [get_scenario(str(config.scenario))]
+            training_roads(ramps=config.scenario == TRAINING_ROADS_WITH_RAMPS)
+            if config.scenario in ROAD_FAMILIES
+            else [get_scenario(str(config.scenario))]
         )
         self._geometries: dict[str, RoadGeometry] = {}
         self.scenario = self.roads[0]

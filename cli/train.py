@@ -53,7 +53,10 @@ def train(
     ] = DEFAULTS.step_length,
     seed: Annotated[int, typer.Option(help="makes the run repeatable", callback=SEED)] = DEFAULTS.seed,
     scenario: Annotated[
-        str, typer.Option(help="ring, highway or tiny; roads = the traffic driver's family of roads")
+        str,
+        typer.Option(
+            help="ring, highway or tiny; roads = the traffic driver's 5 closed roads, roads+ramps = 7"
+        ),
     ] = DEFAULTS.scenario,
     out: Annotated[
         Path | None, typer.Option(help="run directory (default runs/BEHAVIOUR-ALGO-sSEED)")

@@ -138,10 +138,13 @@ def build_scenarios(out_root: Path | None = None, names: Iterable[str] = SCENARI
     return built
 
 
-def training_roads() -> list[Scenario]:
-    """The closed roads the traffic driver trains on (built by `build_training_roads`, committed)."""
+def training_roads(ramps: bool = False) -> list[Scenario]:
+    """The closed roads the traffic driver trains on (built by `build_training_roads`, committed):
+    the five without ramps, or with `ramps` all seven."""
     roads = []
     for spec in TRAINING_ROADS:
+        if spec.ramps and not ramps:
+            continue
         folder = data_dir() / spec.name
         road = Scenario(
             name=spec.name,

@@ -18,11 +18,12 @@ from behaviors.realism import agents_path
 from sumo_scenarios.osm_like import build_osm_like
 
 DURATION = 100.0  # s: cars leaving in the first ~20 s reach the end of the exit ramp
-LATE_FOR_THE_EXIT = (
-    "an agent leaving by the exit from the left lane is handed to SUMO only within its reach of the "
-    "ramp: SUMO's driver makes no lane change in the ~300 m left and stands 10 s at the end of "
-    "the left lane, holding up the cars behind (was, before 51d4ca6: given back on the "
-    "deceleration lane, it drifted off its edge)"
+STANDING_IN_THE_WEAVE = (
+    "a through agent stands 10-11 s on the 3.2 m net where the deceleration lane begins, in a queue "
+    "that creeps on at about 5 m/s, where SUMO's cars stand too (the test asks for under 5 s; the "
+    "issue's bar, 30 s where SUMO's cars drive, is met). Before 51d4ca6 agents given back on the "
+    "deceleration lane drifted off its edge; before the ramp reach grew per lane to cross, an agent "
+    "leaving from the left lane stood 10 s at its end"
 )
 
 
@@ -30,7 +31,7 @@ LATE_FOR_THE_EXIT = (
     "name",
     [
         "motorway3_lefthand",
-        pytest.param("carriageway2", marks=pytest.mark.xfail(strict=True, reason=LATE_FOR_THE_EXIT)),
+        pytest.param("carriageway2", marks=pytest.mark.xfail(strict=True, reason=STANDING_IN_THE_WEAVE)),
     ],
 )
 def test_agents_drive_an_osm_like_net_and_leave_it_by_the_exit(tmp_path, name):

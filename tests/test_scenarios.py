@@ -134,11 +134,22 @@ def test_highway_fcd_distance_is_the_road_position(tmp_path) -> None:
 
 def test_build_reproduces_the_shipped_networks(tmp_path) -> None:
     built = build_scenarios(tmp_path)
-    roads = training_roads()
+    roads = training_roads(ramps=True)
     assert [s.name for s in built] == [*SCENARIO_NAMES, *(r.name for r in roads)]
     for scenario, shipped in zip(built, [*map(get_scenario, SCENARIO_NAMES), *roads], strict=True):
         assert scenario.net.parent == tmp_path / scenario.name
         assert scenario_info(scenario) == scenario_info(shipped)
+
+
+def test_the_ramp_roads_have_cars_joining_and_leaving_and_only_the_wider_family_has_them() -> None:
+    plain, wide = training_roads(), training_roads(ramps=True)
+    assert len(plain) == 5 and len(wide) == 7 and [r.name for r in wide[:5]] == [r.name for r in plain]
+    seen: set[str] = set()
+    with simulation(wide[-1]) as sumo:
+        for _ in range(1500):  # 150 s: the first cars from the ramp drive 3.2 km to the exit
+            sumo.simulationStep()
+            seen.update(sumo.vehicle.getRoadID(v) for v in sumo.vehicle.getIDList())
+    assert {"ramp_in", "ramp_out"} <= seen
 
 
 def test_the_motorway_has_a_ramp_a_weave_and_an_exit_that_cars_use() -> None:
