@@ -370,6 +370,8 @@ class Fleet:
         ramp_reach = reach * (1 + np.maximum(r.lane_number, 0))
         ending = (own_left < reach) & (r.best_end > r.lane_ends[:, 0] + LANE_END_MARGIN)
         ending |= one_lane_left < ramp_reach  # leaving the carriageway: SUMO takes the car to the ramp
+        straddling = self._straddling_an_ending_lane(readings, lanes, reach)
+        ending |= straddling
         signal = (
             sim.signal_ahead(r.ids, np.maximum(SIGNAL_DISTANCE, SIGNAL_SECONDS * r.speed))
             if sim.has_signals
@@ -381,6 +383,7 @@ class Fleet:
             & (lanes >= 2)
             & ~((own_left < reach + HANDBACK_MARGIN) & (r.best_end > r.lane_ends[:, 0]))
             & (one_lane_left >= ramp_reach + HANDBACK_MARGIN)
+            & ~straddling
             & ~signal
         )
         give = needs_sumo & ~r.handed
@@ -394,6 +397,23 @@ class Fleet:
             r.angle[take] = 0.0
         r.handed = (r.handed | give) & ~take
         r.speed = np.where(r.handed, sumo_speed, r.speed)  # SUMO drives them: their speed is SUMO's
+
+    def _straddling_an_ending_lane(
+        self, readings: AgentReadings, lanes: np.ndarray, reach: np.ndarray
+    ) -> np.ndarray:
+        """Agents whose body reaches over the line into a neighbouring lane that ends within `reach`:
+        where that lane drops, the road narrows under them. SUMO takes them and centres them in a
+        lane that goes on (the policies never trained beside a lane drop)."""
+        r = self.rows
+        assert r.frame is not None
+        half_room = (self.geometry.lane_width[r.frame.lane_row] - self.car.width) / 2
+        leads = r.lane_ends - readings.lane_pos[:, None]
+        short = (leads < reach[:, None]) & (r.lane_ends < r.best_end[:, None] - LANE_END_MARGIN)
+        fast_exists = r.lane_number < lanes - 1
+        slow_exists = r.lane_number > 0
+        over_fast = (readings.lateral_pos > half_room) & fast_exists & short[:, 1]
+        over_slow = (readings.lateral_pos < -half_room) & slow_exists & short[:, 2]
+        return over_fast | over_slow
 
     def _shield(self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray) -> None:
         """Side limits and speed caps for the next action; reads the speed of SUMO cars leading agents."""

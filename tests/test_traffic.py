@@ -26,6 +26,7 @@ from behaviors.sim import SimOptions, SumoSim
 from behaviors.sumo_home import sumo_binary
 from behaviors.timing import PhaseTimer
 from sumo_scenarios import get_scenario
+from sumo_scenarios.osm_like import build_osm_like
 
 
 def lanes_along(centre_line: list[tuple[float, float]], lanes: int = 3, width: float = 3.5) -> RoadGeometry:
@@ -364,6 +365,32 @@ def test_an_agent_leaving_by_a_one_lane_ramp_is_handed_over_before_it_and_not_gi
         assert handed_on[first][0] == "A_0"  # before the ramp
         assert all(handed for _, handed in handed_on[first:])  # and SUMO keeps it to the end
         assert fleet.handovers == 1
+
+
+def test_an_agent_reaching_over_a_lane_that_drops_is_centred_by_sumo_and_stays_on_the_road(tmp_path):
+    """On a 3 -> 2 lane drop a keeper held its centre 1 m towards the ending lane; where the lane
+    dropped the road narrowed under it and it was off-track (the losses of the OSM-like nets)."""
+    built = build_osm_like("lanedrop", tmp_path)  # m0's lane 0 ends where m1 begins
+    fleet = Fleet(load_geometry(built.net), CarModel(), 0.2, PhaseTimer(), driver="traffic")
+    options = SimOptions(net=built.net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
+    with SumoSim(options) as sim:
+        sim.add_route("on", ["m0", "m1", "m2"])
+        sim.add_vehicle("agent", "on", "behave_keeper", lane=1, pos=700.0, speed=25.0)
+        sim.step()
+        sim.take_control(["agent"])
+        fleet.add(["agent"], np.array([25.0]), np.array([0.0]), np.array([0.8]))
+        handed, off_track, lanes = False, False, set()
+        for _ in range(150):  # 30 s: through the drop at 1096 m
+            readings = sim.read_agents(["agent"])
+            lanes.add(readings.lane_id[0])
+            fleet.sense(sim, sim.read_vehicles(), True)
+            handed |= bool(fleet.rows.handed[0])
+            leaning = readings.lane_id[0] == "m0_1" and readings.lateral_pos[0] > -1.0
+            steer = -0.5 if leaning else 0.0  # lean over the line into the ending lane and stay there
+            off_track |= bool(fleet.act(sim, np.array([[steer, 0.2, 0.0]], np.float32)).off_track[0])
+            sim.step()
+        assert "m1_0" in lanes or "m1_1" in lanes  # it got through the drop
+        assert handed and not off_track
 
 
 @pytest.mark.parametrize("lefthand", [False, True])
