@@ -85,7 +85,7 @@ class TrafficGymEnv(gymnasium.Env):
             info,
         )
 
-    def render(self) -> np.ndarray | None:
+    def render(self) -> Any:  # gymnasium types frames with a free TypeVar; this is an RGB array or None
         return self.traffic.render()
 
     def close(self) -> None:
