@@ -24,7 +24,7 @@ import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import astuple, dataclass, field
 from pathlib import Path
-from typing import cast
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -66,6 +66,19 @@ class EdgeInfo:
     speed: float
     length: float  # SUMO's length of the edge's rightmost car lane, metres
     normal: bool  # False for junction-internal edges
+
+
+class LanePose(NamedTuple):
+    """Points on lane centre lines (see `RoadGeometry.lane_pose`); lengths in metres along the shape."""
+
+    point: np.ndarray  # [K, 2]
+    angle: np.ndarray  # [K] direction of the segment there
+    curvature: np.ndarray  # [K] turn per metre into that segment (from the one before, else the
+    # one after): what the lane does beyond its ends
+    pos: np.ndarray  # [K] the position, clamped to the lane
+    length: np.ndarray  # [K] the lane shape's length
+    segment_start: np.ndarray  # [K] where the segment holding the point begins
+    segment_end: np.ndarray  # [K] and ends
 
 
 @dataclass(frozen=True)
@@ -130,17 +143,12 @@ class RoadGeometry:
         first = np.searchsorted(self.axis_s, self.lane_base, side="left")
         return first, np.append(first[1:], len(self.axis_s)) - 1
 
-    def lane_pose(
-        self, lane_rows: np.ndarray, shape_pos: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def lane_pose(self, lane_rows: np.ndarray, shape_pos: np.ndarray) -> LanePose:
         """Where a lane's own centre line is at `shape_pos` metres along its shape, clamped to the lane.
 
         SUMO places cars on the lane polyline itself, whose direction jumps at each vertex;
         `road_axis` smooths those jumps (a heading for the paper's driver), which on a coarse
-        polyline is several degrees off the segment a car is on. Returns the point, the
-        segment's direction, the turn per metre into that segment (from the one before, else
-        the one after: what the lane does beyond its ends), the clamped position and the
-        shape's length.
+        polyline is several degrees off the segment a car is on.
         """
         first, last = self._lane_vertices
         lo, hi = first[lane_rows], last[lane_rows]
@@ -160,7 +168,8 @@ class RoadGeometry:
         turn = np.where(j < i, wrap_angle(angle - other), wrap_angle(other - angle))
         middles = (span + np.hypot(e[:, 0], e[:, 1])) / 2
         curvature = np.where(j != i, turn / np.maximum(middles, 1e-9), 0.0)
-        return a + t[:, None] * d, angle, curvature, pos, length
+        start = self.axis_s[i] - self.axis_s[lo]
+        return LanePose(a + t[:, None] * d, angle, curvature, pos, length, start, start + span)
 
     def candidates(self, points: np.ndarray, heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(point row, segment id) pairs: the border segments a track ray from each pose may hit.

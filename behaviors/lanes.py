@@ -132,28 +132,48 @@ def road_coordinates(
 
 
 def lane_coordinates(
-    geometry: RoadGeometry, lane_row: np.ndarray, shape_pos: np.ndarray, front: np.ndarray, offset: np.ndarray
+    geometry: RoadGeometry,
+    lane_row: np.ndarray,
+    shape_pos: np.ndarray,
+    front: np.ndarray,
+    pairs: np.ndarray,
+    offset: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(along, across) of world offsets from cars' fronts, in the frame of each car's own lane.
+    """(along, across) of world `offset`s from cars' fronts (car `pairs[k]` for offset k), in the
+    frame of each car's own lane.
 
     `along` runs along the lane's centre line from the car's front, `across` is the distance
     from that line (+ geometric left). A lane is a polyline and SUMO places cars on it, so
     the point is projected onto the polyline itself: a car in the same lane beyond a vertex
     where the road turns 12 degrees stays in that lane. Beyond the lane's ends the road is
-    taken to go on with the end's curvature (the next edge is not known here).
+    taken to go on with the end's curvature (the next edge is not known here). A segment is
+    straight, so a projection that stays on the car's own segment is exact at once; only the
+    others (beyond a vertex, off the lane's ends) are projected once more.
     """
-    target = front + offset
-    point, angle, _, _, _ = geometry.lane_pose(lane_row, shape_pos)
-    r = target - point
-    along = r[:, 0] * np.cos(angle) + r[:, 1] * np.sin(angle)
-    for _ in range(2):  # a projection step per vertex crossed; two cover neighbours within range
-        point, angle, _, _, _ = geometry.lane_pose(lane_row, shape_pos + along)
-        r = target - point
-        along = along + r[:, 0] * np.cos(angle) + r[:, 1] * np.sin(angle)
-    point, angle, curvature, pos, _ = geometry.lane_pose(lane_row, shape_pos + along)
-    r = target - point
-    ahead, across = road_coordinates(r[:, 0], r[:, 1], angle, curvature)
-    return pos - shape_pos + ahead, across
+    car = geometry.lane_pose(lane_row, shape_pos)
+    target = front[pairs] + offset
+    r = target - car.point[pairs]
+    cos, sin = np.cos(car.angle)[pairs], np.sin(car.angle)[pairs]
+    along = r[:, 0] * cos + r[:, 1] * sin
+    across = r[:, 1] * cos - r[:, 0] * sin
+    at = shape_pos[pairs] + along
+    beyond = (at < car.segment_start[pairs]) | (at > car.segment_end[pairs])
+    if beyond.any():
+        k = np.flatnonzero(beyond)
+        along[k], across[k] = _project(geometry, lane_row[pairs[k]], shape_pos[pairs[k]], target[k], along[k])
+    return along, across
+
+
+def _project(
+    geometry: RoadGeometry, lane_row: np.ndarray, shape_pos: np.ndarray, target: np.ndarray, along: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """One Newton step of the projection onto the lane polyline from a first guess `along` (the
+    guess lands within a few metres of the foot even 150 m round a 300 m bend), with the
+    segment's curvature carrying on beyond the lane's ends."""
+    pose = geometry.lane_pose(lane_row, shape_pos + along)
+    r = target - pose.point
+    ahead, across = road_coordinates(r[:, 0], r[:, 1], pose.angle, pose.curvature)
+    return pose.pos - shape_pos + ahead, across
 
 
 def surroundings(
@@ -175,7 +195,7 @@ def surroundings(
     q, m, dx, dy, _ = neighbours(agents.front, positions, GAP_RANGE + OTHER_LENGTH, exclude=agent_rows)
     if len(q):
         along, across = lane_coordinates(
-            geometry, agents.lane_row[q], agents.shape_pos[q], agents.front[q], np.stack([dx, dy], axis=1)
+            geometry, agents.lane_row, agents.shape_pos, agents.front, q, np.stack([dx, dy], axis=1)
         )
         # the other car's lateral place in own-lane widths, 0 = own lane centre
         width = agents.lane_width[q]

@@ -127,7 +127,7 @@ def test_a_car_in_the_own_lane_beyond_a_bend_of_the_polyline_is_the_leader_not_a
     centre = [(0.0, 0.0), (250.0, 0.0), (250.0 + 250.0 * np.cos(kink), 250.0 * np.sin(kink))]
     road = lanes_along(centre)
     middle = road.lane_index["e_1"]
-    on_lane = lambda s, lane: road.lane_pose(np.array([road.lane_index[f"e_{lane}"]]), np.array([s]))[0][0]  # noqa: E731
+    on_lane = lambda s, lane: road.lane_pose(np.array([road.lane_index[f"e_{lane}"]]), np.array([s])).point[0]  # noqa: E731
     agent = one_agent(
         front=on_lane(220.0, 1)[None, :], lane_row=np.array([middle]), shape_pos=np.array([220.0])
     )
@@ -144,7 +144,7 @@ def test_neighbours_beyond_the_end_of_a_curved_lane_stay_in_their_lanes():
     radius, arc_end = 300.0, np.pi / 6  # a 157 m arc; the neighbours are 60 m past its end
     phi = np.linspace(0.0, arc_end, 40)
     road = lanes_along([(radius * np.sin(p), radius - radius * np.cos(p)) for p in phi])
-    agent_at = road.lane_pose(np.array([road.lane_index["e_1"]]), np.array([120.0]))[0][0]
+    agent_at = road.lane_pose(np.array([road.lane_index["e_1"]]), np.array([120.0])).point[0]
     agent = one_agent(
         front=agent_at[None, :], lane_row=np.array([road.lane_index["e_1"]]), shape_pos=np.array([120.0])
     )
