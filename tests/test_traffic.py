@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -295,18 +297,26 @@ def exit_net(tmp: Path) -> Path:
     return net
 
 
+@contextlib.contextmanager
+def keeper_on(
+    net: Path, edges: list[str], *, lane: int, pos: float, speed: float
+) -> Iterator[tuple[SumoSim, Fleet]]:
+    """SUMO on `net` with one keeper, "agent", on the route `edges`, driven by a traffic-driver Fleet."""
+    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), driver="traffic")
+    options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
+    with SumoSim(options) as sim:
+        sim.add_route("route", edges)
+        sim.add_vehicle("agent", "route", "behave_keeper", lane=lane, pos=pos, speed=speed)
+        sim.step()
+        sim.take_control(["agent"])
+        fleet.add(["agent"], np.array([speed]), np.array([0.0]), np.array([0.8]))
+        yield sim, fleet
+
+
 def test_sumo_takes_an_agent_whose_lane_becomes_an_exit_and_hands_it_back(tmp_path):
     """Without the handover SUMO stops the agent dead where lane 0 turns off its route."""
     net = exit_net(tmp_path)
-    geometry = load_geometry(net)
-    fleet = Fleet(geometry, CarModel(), 0.2, PhaseTimer(), driver="traffic")
-    options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
-    with SumoSim(options) as sim:
-        sim.add_route("main", ["A", "B"])
-        sim.add_vehicle("agent", "main", "behave_keeper", lane=0, pos=50.0, speed=25.0)
-        sim.step()
-        sim.take_control(["agent"])
-        fleet.add(["agent"], np.array([25.0]), np.array([0.0]), np.array([0.8]))
+    with keeper_on(net, ["A", "B"], lane=0, pos=50.0, speed=25.0) as (sim, fleet):
         handed_at_some_point, lowest_speed, steps = False, 99.0, 0
         while "agent" in sim.vehicle_ids() and steps < 600:
             fleet.sense(sim, sim.read_vehicles(), True)
@@ -324,14 +334,7 @@ def test_sumo_takes_an_agent_whose_lane_becomes_an_exit_and_hands_it_back(tmp_pa
 def test_sumo_chooses_the_speed_of_an_agent_it_took(tmp_path):
     """The agent's last commanded speed must not stick: SUMO drives a handed-over car as its own."""
     net = exit_net(tmp_path)
-    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), driver="traffic")
-    options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
-    with SumoSim(options) as sim:
-        sim.add_route("main", ["A", "B"])
-        sim.add_vehicle("agent", "main", "behave_keeper", lane=0, pos=50.0, speed=12.0)
-        sim.step()
-        sim.take_control(["agent"])
-        fleet.add(["agent"], np.array([12.0]), np.array([0.0]), np.array([0.8]))
+    with keeper_on(net, ["A", "B"], lane=0, pos=50.0, speed=12.0) as (sim, fleet):
         speeds_while_handed = []
         while "agent" in sim.vehicle_ids() and len(speeds_while_handed) < 50:
             fleet.sense(sim, sim.read_vehicles(), True)
@@ -346,14 +349,7 @@ def test_an_agent_leaving_by_a_one_lane_ramp_is_handed_over_before_it_and_not_gi
     """Its lane leads on to the ramp, so only the ramp's single lane told SUMO to take it, at the
     junction; and a car given back on a lane that soon leaves the carriageway drifted off it."""
     net = exit_net(tmp_path)
-    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), driver="traffic")
-    options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
-    with SumoSim(options) as sim:
-        sim.add_route("off", ["A", "X"])
-        sim.add_vehicle("agent", "off", "behave_keeper", lane=0, pos=50.0, speed=25.0)
-        sim.step()
-        sim.take_control(["agent"])
-        fleet.add(["agent"], np.array([25.0]), np.array([0.0]), np.array([0.8]))
+    with keeper_on(net, ["A", "X"], lane=0, pos=50.0, speed=25.0) as (sim, fleet):
         handed_on = []
         while "agent" in sim.vehicle_ids() and len(handed_on) < 400:
             lane = sim.read_agents(["agent"]).lane_id[0]
@@ -371,14 +367,7 @@ def test_an_agent_reaching_over_a_lane_that_drops_is_centred_by_sumo_and_stays_o
     """On a 3 -> 2 lane drop a keeper held its centre 1 m towards the ending lane; where the lane
     dropped the road narrowed under it and it was off-track (the losses of the OSM-like nets)."""
     built = build_osm_like("lanedrop", tmp_path)  # m0's lane 0 ends where m1 begins
-    fleet = Fleet(load_geometry(built.net), CarModel(), 0.2, PhaseTimer(), driver="traffic")
-    options = SimOptions(net=built.net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
-    with SumoSim(options) as sim:
-        sim.add_route("on", ["m0", "m1", "m2"])
-        sim.add_vehicle("agent", "on", "behave_keeper", lane=1, pos=700.0, speed=25.0)
-        sim.step()
-        sim.take_control(["agent"])
-        fleet.add(["agent"], np.array([25.0]), np.array([0.0]), np.array([0.8]))
+    with keeper_on(built.net, ["m0", "m1", "m2"], lane=1, pos=700.0, speed=25.0) as (sim, fleet):
         handed, off_track, lanes = False, False, set()
         for _ in range(150):  # 30 s: through the drop at 1096 m
             readings = sim.read_agents(["agent"])
@@ -430,14 +419,7 @@ def test_leaving_a_junctions_internal_lane_sideways_is_not_off_the_road(tmp_path
     """Internal edges hold some connections' lanes, not the carriageway (the motorway's lane drop
     counted agents off-track there)."""
     net = exit_net(tmp_path)
-    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), driver="traffic")
-    options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
-    with SumoSim(options) as sim:
-        sim.add_route("main", ["A", "B"])
-        sim.add_vehicle("agent", "main", "behave_keeper", lane=2, pos=770.0, speed=20.0)
-        sim.step()
-        sim.take_control(["agent"])
-        fleet.add(["agent"], np.array([20.0]), np.array([0.0]), np.array([0.8]))
+    with keeper_on(net, ["A", "B"], lane=2, pos=770.0, speed=20.0) as (sim, fleet):
         inside = []
         for _ in range(20):
             fleet.sense(sim, sim.read_vehicles(), True)
