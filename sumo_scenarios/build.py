@@ -294,26 +294,11 @@ def write_plain(
     closed: bool,
     location: ET.Element | None = None,
 ) -> None:
+    """The plain XML netconvert reads: nodes, edges and lane-to-lane connections (see `netconvert`)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
     write_nodes(out_dir / f"{name}.nod.xml", edges, location)
     write_edges(out_dir / f"{name}.edg.xml", edges, lanes, lane_width, speed)
     write_connections(out_dir / f"{name}.con.xml", edges, lanes, closed)
-
-
-def build_network(
-    out_dir: Path,
-    name: str,
-    edges: Sequence[EdgeSpec],
-    *,
-    lanes: int,
-    lane_width: float,
-    speed: float,
-    closed: bool,
-    location: ET.Element | None = None,
-) -> Path:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_plain(out_dir, name, edges, lanes=lanes, lane_width=lane_width, speed=speed, closed=closed,
-                location=location)  # fmt: skip
-    return netconvert(out_dir, name)
 
 
 RAMP_SPEED = 22.22
@@ -397,7 +382,6 @@ def build_ring(
     With `ramps`, SUMO's cars also join from an on-ramp on the first straight (merging into
     lane 0 at a junction, yielding to the ring) and leave by an exit on the second."""
     edges = ring_edges(radius, straight, edge_length)
-    out_dir.mkdir(parents=True, exist_ok=True)
     write_plain(out_dir, name, edges, lanes=lanes, lane_width=lane_width, speed=speed, closed=True)
     if ramps:
         add_ramps(out_dir, name, edges)
@@ -440,16 +424,9 @@ def build_straight(
     if kilometrage:
         edges = with_kilometrage(edges)
     location = utm_location(edges) if geo else None
-    net = build_network(
-        out_dir,
-        name,
-        edges,
-        lanes=lanes,
-        lane_width=lane_width,
-        speed=speed,
-        closed=False,
-        location=location,
-    )
+    write_plain(out_dir, name, edges, lanes=lanes, lane_width=lane_width, speed=speed, closed=False,
+                location=location)  # fmt: skip
+    net = netconvert(out_dir, name)
     routes = out_dir / f"{name}.rou.xml"
     write_routes(routes, "main", [e.id for e in edges])
     return Scenario(
