@@ -37,3 +37,14 @@ def print_table(console: Console, title: str, header: Sequence[str], rows: Itera
     for row in rows:
         table.add_row(*row)
     console.print(table)
+
+
+def numbered_checkpoints(run: Path) -> list[tuple[int, Path]]:
+    """(episodes trained, path) of a run's `episode_*.pt` checkpoints, in training order."""
+    found = [(int(p.stem.split("_")[1]), p) for p in (run / "checkpoints").glob("episode_*.pt")]
+    return sorted(found)
+
+
+def meets_lanekeeping_bar(mean: dict[str, float]) -> bool:
+    """The project's lane-keeping bar: <= 1% colliding steps, no off-track, >= 80% of the limit."""
+    return mean["colliding_steps_pct"] <= 1.0 and mean["off_tracks"] == 0 and mean["mean_speed_frac"] >= 0.8

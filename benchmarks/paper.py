@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import torch
+from common import meets_lanekeeping_bar, numbered_checkpoints
 
 from behaviors.env import BehaveEnv, EnvConfig
 from behaviors.errors import BehaveError
@@ -267,19 +268,10 @@ def cached_plan(
     return results, realism
 
 
-def numbered_checkpoints(run: Path) -> list[tuple[int, Path]]:
-    found = [(int(p.stem.split("_")[1]), p) for p in (run / "checkpoints").glob("episode_*.pt")]
-    return sorted(found)
-
-
 def checkpoint_at(run: Path, episode: int, total: int) -> Path:
     """The numbered checkpoint, or final.pt for the last episode (saved whatever the interval)."""
     name = "final" if episode == total else f"episode_{episode:05d}"
     return run / "checkpoints" / f"{name}.pt"
-
-
-def converged(m: dict[str, float]) -> bool:
-    return m["colliding_steps_pct"] <= 1.0 and m["off_tracks"] == 0 and m["mean_speed_frac"] >= 0.8
 
 
 # --- markdown -------------------------------------------------------------------------------
@@ -440,7 +432,7 @@ def run_paper(args: argparse.Namespace) -> None:
                 {"episodes": args.converge_episodes, "seed": seed},
                 lambda p=path: fresh_rows(conv_env, p, args.converge_episodes, seed),
             )
-            if converged(mean):
+            if meets_lanekeeping_bar(mean):
                 result["reached"] = {"episode": ep, "wall_s": float(wall_at[ep - 1]), **mean}
                 break
             result["last"] = {"episode": ep, **mean}
