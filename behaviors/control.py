@@ -258,7 +258,7 @@ class Fleet:
                 obs = self._observe(readings, vehicles, rows, with_id)
         if self.shield:
             with self.timer.phase("shield"):
-                self._shield(sim, vehicles, rows)
+                self._shield(vehicles, rows)
         return obs
 
     def _observe(self, readings: AgentReadings, vehicles: VehicleState, rows: np.ndarray, with_id: bool):
@@ -287,7 +287,7 @@ class Fleet:
         r.lane_changed = (r.lane_number >= 0) & (number != r.lane_number) & (count == r.lane_count) & normal
         r.lane_number = np.where(normal, number, r.lane_number)
         r.lane_count = np.where(normal, count, r.lane_count)
-        speeds = sim.read_speeds(vehicles.ids)  # every vehicle's, once: neighbours and handed agents
+        speeds = vehicles.speed.copy()  # SUMO's; the agents' own are put in below
         self._refresh_lane_ends(sim, readings)
         self._hand_over(sim, readings, count, normal, speeds[rows])
         agents = LaneAgents(
@@ -415,8 +415,8 @@ class Fleet:
         over_slow = (readings.lateral_pos < -half_room) & slow_exists & short[:, 2]
         return over_fast | over_slow
 
-    def _shield(self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray) -> None:
-        """Side limits and speed caps for the next action; reads the speed of SUMO cars leading agents."""
+    def _shield(self, vehicles: VehicleState, rows: np.ndarray) -> None:
+        """Side limits and speed caps for the next action (SUMO cars leading agents at SUMO's speed)."""
         r = self.rows
         f = r.frame
         assert f is not None
@@ -432,8 +432,7 @@ class Fleet:
         along_road = r.speed * np.cos(r.angle)
         leader_speed[led[by_agent >= 0]] = along_road[by_agent[by_agent >= 0]]
         by_sumo = led[by_agent < 0]
-        if len(by_sumo):
-            leader_speed[by_sumo] = sim.read_speeds([vehicles.ids[r] for r in around.leader[by_sumo]])
+        leader_speed[by_sumo] = vehicles.speed[around.leader[by_sumo]]
         limits = side_limits(around.side_room)  # geometric (left, right)
         # moves are signed like SUMO's lane indices: + is the geometric right in left-hand nets
         r.side_limit = limits[:, ::-1] if self.geometry.lefthand else limits

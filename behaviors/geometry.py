@@ -143,6 +143,12 @@ class RoadGeometry:
         first = np.searchsorted(self.axis_s, self.lane_base, side="left")
         return first, np.append(first[1:], len(self.axis_s)) - 1
 
+    @functools.cached_property
+    def lane_segments(self) -> np.ndarray:
+        """[L] straight segments of each lane's shape (1 for a straight lane)."""
+        first, last = self._lane_vertices
+        return np.maximum(last - first, 1)
+
     def lane_pose(self, lane_rows: np.ndarray, shape_pos: np.ndarray) -> LanePose:
         """Where a lane's own centre line is at `shape_pos` metres along its shape, clamped to the lane.
 

@@ -148,7 +148,8 @@ def lane_coordinates(
     where the road turns 12 degrees stays in that lane. Beyond the lane's ends the road is
     taken to go on with the end's curvature (the next edge is not known here). A segment is
     straight, so a projection that stays on the car's own segment is exact at once; only the
-    others (beyond a vertex, off the lane's ends) are projected once more.
+    others (beyond a vertex, off the lane's ends) are projected once more, unless the lane is one
+    straight segment, which goes on straight.
     """
     car = geometry.lane_pose(lane_row, shape_pos)
     target = front[pairs] + offset
@@ -157,7 +158,8 @@ def lane_coordinates(
     along = r[:, 0] * cos + r[:, 1] * sin
     across = r[:, 1] * cos - r[:, 0] * sin
     at = shape_pos[pairs] + along
-    beyond = (at < car.segment_start[pairs]) | (at > car.segment_end[pairs])
+    bends = (geometry.lane_segments[lane_row] > 1)[pairs]
+    beyond = bends & ((at < car.segment_start[pairs]) | (at > car.segment_end[pairs]))
     if beyond.any():
         k = np.flatnonzero(beyond)
         along[k], across[k] = _project(geometry, lane_row[pairs[k]], shape_pos[pairs[k]], target[k], along[k])
@@ -201,12 +203,17 @@ def surroundings(
         width = agents.lane_width[q]
         lane_units = across * agents.fast_side_sign / width
         half = OTHER_WIDTH / 2 / width
+        behind = along < 0
+        distance = np.abs(along) - OTHER_LENGTH
+        slots, pairs = [], []
         for side, column in ((0, 0), (1, 2), (-1, 4)):
-            overlaps = (lane_units + half > side - 0.5) & (lane_units - half < side + 0.5)
-            ahead = overlaps & (along >= 0)
-            behind = overlaps & (along < 0)
-            _nearest(gap, other, column, q[ahead], along[ahead] - OTHER_LENGTH, speeds[m[ahead]])
-            _nearest(gap, other, column + 1, q[behind], -along[behind] - OTHER_LENGTH, speeds[m[behind]])
+            k = np.flatnonzero((lane_units + half > side - 0.5) & (lane_units - half < side + 0.5))
+            slots.append(q[k] * 6 + column + behind[k])  # leader column, or the follower one beside it
+            pairs.append(k)
+        slot, pair = np.concatenate(slots), np.concatenate(pairs)
+        found, nearest = nearest_per_slot(n * 6, slot, distance[pair])
+        gap.ravel()[found] = distance[pair[nearest]]
+        other.ravel()[found] = speeds[m[pair[nearest]]]
     gap = np.maximum(gap, 0.0)
     fast_missing = agents.lane_number >= agents.lanes - 1
     slow_missing = agents.lane_number <= 0
@@ -217,19 +224,26 @@ def surroundings(
     return Surroundings(gap, other)
 
 
-def _nearest(
-    gap: np.ndarray, other: np.ndarray, column: int, rows: np.ndarray, dist: np.ndarray, speed: np.ndarray
-) -> None:
-    """Keep, per row, the smallest `dist` (and the speed of that vehicle) in `column`."""
-    if not len(rows):
-        return
-    order = np.lexsort((dist, rows))
-    rows, dist, speed = rows[order], dist[order], speed[order]
-    first = np.concatenate([[True], rows[1:] != rows[:-1]])
-    rows, dist, speed = rows[first], dist[first], speed[first]
-    closer = dist < gap[rows, column]
-    gap[rows[closer], column] = dist[closer]
-    other[rows[closer], column] = speed[closer]
+DISTANCE_RESOLUTION = 1e-3
+"""m: neighbours whose distances differ by less than this are ranked by their order instead."""
+_ENTRY_BITS = 26  # up to 67 million candidate entries per call
+
+
+def nearest_per_slot(slots: int, slot: np.ndarray, distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(slots that have an entry, index of each one's nearest entry), in one pass over all entries.
+
+    Each entry's distance (to a millimetre) and index are packed into one integer, so a single
+    unbuffered minimum per slot finds the nearest: one sort of six candidate lists costs more.
+    """
+    if len(slot) >= 1 << _ENTRY_BITS:
+        raise ValueError("too many neighbour entries for one call")
+    low = distance.min(initial=0.0)
+    rank = np.round((distance - low) / DISTANCE_RESOLUTION).astype(np.int64)
+    packed = (rank << _ENTRY_BITS) | np.arange(len(slot), dtype=np.int64)
+    best = np.full(slots, np.iinfo(np.int64).max)
+    np.minimum.at(best, slot, packed)
+    found = np.flatnonzero(best != np.iinfo(np.int64).max)
+    return found, best[found] & ((1 << _ENTRY_BITS) - 1)
 
 
 def observe_lanes(agents: LaneAgents, around: Surroundings) -> np.ndarray:

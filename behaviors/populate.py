@@ -469,9 +469,10 @@ class Population:
             vehicles = sim.read_vehicles(with_distance=False)  # no race here: positions suffice
             now = sim.time
         crashed = fleet.involved(vehicles, contact)
-        gone = fleet.locate(vehicles) < 0
+        rows = fleet.locate(vehicles)
+        gone = rows < 0
         if len(fleet):
-            self._observe_agents(~gone)
+            self._observe_agents(~gone, vehicles.speed[rows[~gone]])
         self.log.end(end_reasons(crashed, off_track, gone, self._arrived(gone, arrived)), now)
         leaving = crashed | off_track | gone
         self.summary.collisions += int(crashed.sum())
@@ -515,13 +516,9 @@ class Population:
         self.fleet.add(agents, sim.read_speeds(agents), behaviour, desired_fractions(behaviour, self.rng))
         self.log.join(agents, kinds, time)
 
-    def _observe_agents(self, present: np.ndarray) -> None:
-        """SUMO's speed of each agent it still has, not the one commanded: SUMO may hold a car back
-        (a lane that does not lead on stops it dead) whatever the policy asks."""
-        assert self.sim is not None
-        ids = self.fleet.ids
-        with self.timer.phase("read"):
-            speed = self.sim.read_speeds(ids if present.all() else [ids[k] for k in np.flatnonzero(present)])
+    def _observe_agents(self, present: np.ndarray, speed: np.ndarray) -> None:
+        """Log SUMO's `speed` of each agent it still has, not the one commanded: SUMO may hold a
+        car back (a lane that does not lead on stops it dead) whatever the policy asks."""
         self.log.observe(present, speed)
         overtaker = self.fleet.behaviour_id[present] == 1.0
         for name, mask in (("overtaker", overtaker), ("keeper", ~overtaker)):

@@ -86,6 +86,7 @@ class VehicleState:
 
     ids: tuple[str, ...]
     position: np.ndarray  # [M, 2] front bumper centre (SUMO's vehicle position), metres
+    speed: np.ndarray  # [M] m/s
     distance: np.ndarray  # [M] odometer since insertion, metres (empty if not read)
     row: dict[str, int]  # id -> row; shared by consecutive states with the same ids: never mutate
 
@@ -98,7 +99,8 @@ class VehicleState:
         keep[rows] = False
         ids = tuple(v for v, k in zip(self.ids, keep.tolist(), strict=True) if k)
         distance = self.distance[keep] if len(self.distance) else self.distance
-        return VehicleState(ids, self.position[keep], distance, {v: k for k, v in enumerate(ids)})
+        row = {v: k for k, v in enumerate(ids)}
+        return VehicleState(ids, self.position[keep], self.speed[keep], distance, row)
 
 
 @dataclass(frozen=True)
@@ -155,7 +157,7 @@ class SumoSim:
             raise sumo_error(exc, options, "could not start") from None
         self._closer = weakref.finalize(self, _stop, libsumo)
         self.step_length = options.step_length
-        self._last = VehicleState((), np.zeros((0, 2)), np.zeros(0), {})
+        self._last = VehicleState((), np.zeros((0, 2)), np.zeros(0), np.zeros(0), {})
 
     def __enter__(self) -> SumoSim:
         return self
@@ -186,7 +188,7 @@ class SumoSim:
             raise sumo_error(exc, self.options, "stopped") from None
 
     def read_vehicles(self, with_distance: bool = True) -> VehicleState:
-        """Position (and odometer) of every vehicle: the one per-step read of the whole fleet."""
+        """Position, speed (and odometer) of every vehicle: the one per-step read of the whole fleet."""
         v = self._fast
         ids = self._sumo.vehicle.getIDList()
         if ids == self._last.ids:  # nobody came or left: the same row numbers (and dict) hold
@@ -197,8 +199,9 @@ class SumoSim:
         position = np.fromiter(chain.from_iterable(map(v.getPosition, ids)), float, 2 * len(ids)).reshape(
             -1, 2
         )
+        speed = np.fromiter(map(v.getSpeed, ids), float, len(ids))
         distance = np.fromiter(map(v.getDistance, ids), float, len(ids)) if with_distance else np.zeros(0)
-        self._last = VehicleState(ids, position, distance, row)
+        self._last = VehicleState(ids, position, speed, distance, row)
         return self._last
 
     def read_agents(self, ids: Sequence[str]) -> AgentReadings:

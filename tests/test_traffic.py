@@ -19,6 +19,7 @@ from behaviors.lanes import (
     TRAFFIC_OBS_SIZE,
     TRAFFIC_SLICES,
     LaneAgents,
+    nearest_per_slot,
     observe_lanes,
     road_coordinates,
     surroundings,
@@ -107,6 +108,36 @@ def test_surroundings_find_leaders_and_followers_per_lane():
     assert obs.shape == (1, TRAFFIC_OBS_SIZE)
     assert obs[0, TRAFFIC_SLICES["gap"]][0] == pytest.approx(40.0 / GAP_RANGE)
     assert obs[0, TRAFFIC_SLICES["relative_speed"]][0] == pytest.approx(-5.0 / 15.0)
+
+
+def test_nearest_per_slot_is_the_smallest_distance_of_each_slot_across_many_agents():
+    rng = np.random.default_rng(3)
+    slot = rng.integers(0, 60, 2_000)
+    distance = np.round(rng.uniform(-5.0, 150.0, 2_000), 2)  # rounded: ties between entries occur
+    found, nearest = nearest_per_slot(64, slot, distance)
+    assert list(found) == sorted(set(slot.tolist()))
+    for s_, k in zip(found, nearest, strict=True):
+        assert slot[k] == s_ and distance[k] == distance[slot == s_].min()
+    assert nearest_per_slot(6, np.zeros(0, np.int64), np.zeros(0))[0].size == 0
+
+
+def test_each_of_many_agents_gets_its_own_nearest_leader_and_follower():
+    # agents every 20 m in the middle lane, a SUMO car 8 m ahead of each: every agent's leader is
+    # its own car (gap 3 m), its follower the car in front of the agent behind (gap 7 m)
+    count = 30
+    fronts = np.stack([np.arange(count) * 20.0 - 300.0, np.zeros(count)], axis=1)
+    cars = fronts + np.array([8.0, 0.0])
+    agents = one_agent(
+        front=fronts, lane_row=np.full(count, STRAIGHT.lane_index["e_1"]), shape_pos=fronts[:, 0] + 500.0,
+        **{k: np.repeat(v, count, axis=0) for k, v in vars(one_agent()).items()
+           if isinstance(v, np.ndarray) and k not in ("front", "lane_row", "shape_pos")},
+    )  # fmt: skip
+    speeds = np.concatenate([np.full(count, 30.0), np.arange(count) + 10.0])
+    around = surroundings(agents, np.concatenate([fronts, cars]), speeds, np.arange(count), STRAIGHT)
+    assert around.gap[:, 0] == pytest.approx(np.full(count, 3.0))
+    assert list(around.other_speed[:, 0]) == list(np.arange(count) + 10.0)
+    assert around.gap[1:, 1] == pytest.approx(np.full(count - 1, 7.0))
+    assert list(around.other_speed[1:, 1]) == list(np.arange(count - 1) + 10.0)
 
 
 def test_a_car_astride_two_lanes_blocks_both_and_missing_lanes_are_walls():
