@@ -6,6 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
+WORKERS ?= 1
 
 .PHONY: setup run test typecheck lint bench learn-check pretrained paper realism own-nets clean
 
@@ -39,7 +40,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_populate.py
 
 learn-check: $(STAMP)
-	$(BIN)/python benchmarks/learn_check.py --seed $(SEED)
+	$(BIN)/python benchmarks/learn_check.py --seed $(SEED) --workers $(WORKERS)
 
 pretrained: $(STAMP)
 	$(BIN)/python benchmarks/make_pretrained.py --seed $(SEED)

@@ -19,11 +19,11 @@ from sumo_scenarios.osm_like import build_osm_like
 
 DURATION = 100.0  # s: cars leaving in the first ~20 s reach the end of the exit ramp
 STANDING_IN_THE_WEAVE = (
-    "a through agent stands 10-11 s on the 3.2 m net where the deceleration lane begins, in a queue "
-    "that creeps on at about 5 m/s, where SUMO's cars stand too (the test asks for under 5 s; the "
-    "issue's bar, 30 s where SUMO's cars drive, is met). Before 51d4ca6 agents given back on the "
-    "deceleration lane drifted off its edge; before the ramp reach grew per lane to cross, an agent "
-    "leaving from the left lane stood 10 s at its end"
+    "a through overtaker in the free fast lane of the 3.2 m net brakes to a stop and stands 10-12 s "
+    "beside the queue in the lane on its slow side, where the deceleration lane begins; SUMO's cars "
+    "in the same run stand at most 3.2 s. The policy slows to stay behind a car 5-8 m ahead in the "
+    "neighbouring lane (with that car taken away it does not brake): it never trained beside a "
+    "queueing lane. Before 51d4ca6 agents given back on the deceleration lane drifted off its edge"
 )
 
 
