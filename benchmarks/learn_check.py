@@ -75,11 +75,11 @@ def main() -> None:
     for episodes, path in numbered_checkpoints(out):
         if episodes == 0:
             continue
-        policy = actor_policy(load_actor(path))
-        scan = mean_rows(evaluate(env_config, policy, args.scan_episodes, seed=args.seed))
+        scan_rows = evaluate(env_config, actor_policy(load_actor(path)), args.scan_episodes, seed=args.seed)
+        scan, lost = mean_rows(scan_rows), sum(r["off_tracks"] for r in scan_rows)
         print(
             f"checkpoint {episodes:4d}: colliding {scan['colliding_steps_pct']:.2f}%  "
-            f"off-tracks {int(scan['off_tracks'])}  speed {100 * scan['mean_speed_frac']:.1f}%", flush=True,
+            f"off-tracks {lost}  speed {100 * scan['mean_speed_frac']:.1f}%", flush=True,
         )  # fmt: skip
         if meets_lanekeeping_bar(scan):
             reached = episodes
@@ -92,6 +92,12 @@ def main() -> None:
     print(f"training episodes       {len(rows)}")
     print(f"training wall time      {wall / 60:.1f} min, {args.workers} worker(s)")
     print(f"training env steps      {int(env_steps[-1]) if len(rows) else 0:,}")
+    full = next((k for k, row in enumerate(rows) if row["steps"] >= env_config.max_steps), None)
+    if full is not None:  # a marker on the learning curve itself, between checkpoints
+        print(
+            f"first full episode      episode {full + 1}, {int(env_steps[full]):,} env steps, "
+            f"{since_start[full] / 60:.1f} min"
+        )
     if reached is None:
         print(f"first at the bar        none of the checkpoints (every {args.checkpoint_every} episodes)")
     else:
