@@ -66,7 +66,7 @@ def read_sumocfg(path: Path) -> ScenarioConfig:
         begin=seconds(path, values, "begin") or 0.0,
         end=seconds(path, values, "end"),
         step_length=seconds(path, values, "step-length"),
-        lateral_resolution=seconds(path, values, "lateral-resolution"),
+        lateral_resolution=number(path, values, "lateral-resolution"),
     )
 
 
@@ -81,14 +81,33 @@ def files(config: Path, listed: str) -> tuple[Path, ...]:
     return tuple(out)
 
 
-def seconds(config: Path, values: dict[str, str], name: str) -> float | None:
-    """A numeric option of the sumocfg (times as plain seconds), None if not set."""
-    text = values.get(name)
-    if text is None or text == "":
+NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+CLOCK_UNITS = (1.0, 60.0, 3600.0, 86400.0)
+"""Seconds per field of SUMO's clock format, read from the right: [DD:]HH:MM:SS[.S]."""
+
+
+def number(config: Path, values: dict[str, str], name: str) -> float | None:
+    """A plain numeric option of the sumocfg, None if not set."""
+    text = values.get(name, "").strip()
+    if not text:
         return None
-    if not re.fullmatch(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?", text.strip()):
-        raise BehaveError(f"sumocfg {config}: {name} must be a number of seconds, got '{text}'")
+    if not NUMBER.fullmatch(text):
+        raise BehaveError(f"sumocfg {config}: {name} must be a number, got '{text}'")
     return float(text)
+
+
+def seconds(config: Path, values: dict[str, str], name: str) -> float | None:
+    """A time option of the sumocfg, None if not set: seconds, or SUMO's HH:MM:SS or DD:HH:MM:SS
+    (fractions of a second allowed), the forms SUMO itself accepts."""
+    text = values.get(name, "").strip()
+    if not text:
+        return None
+    fields = text.split(":")
+    if NUMBER.fullmatch(text):
+        return float(text)
+    if len(fields) in (3, 4) and all(NUMBER.fullmatch(f) for f in fields):
+        return sum(float(f) * unit for f, unit in zip(reversed(fields), CLOCK_UNITS, strict=False))
+    raise BehaveError(f"sumocfg {config}: {name} must be seconds or HH:MM:SS (DD:HH:MM:SS), got '{text}'")
 
 
 def share_draw(seed: int, vehicle: str) -> float:

@@ -155,6 +155,26 @@ def test_sumocfg_options_hold_and_paths_resolve_against_its_folder(tmp_path):
     assert config_from(cfg, step_length=0.2, duration=10.0).step_length == 0.2
 
 
+def test_sumocfg_times_in_sumos_clock_format_are_read_as_sumo_reads_them(tmp_path):
+    cfg = roads_scenario(tmp_path, roads=1, end=90.0)
+    text = cfg.read_text()
+
+    def times(begin: str, end: str) -> str:
+        return text.replace(
+            '<begin value="0"/><end value="90.0"/>', f'<begin value="{begin}"/><end value="{end}"/>'
+        )
+
+    for begin, end, expected in (
+        ("0:01:00", "1:00:30.5", (60.0, 3630.5)),
+        ("1:00:00:00", "9e4", (86400.0, 9e4)),
+    ):
+        cfg.write_text(times(begin, end))
+        assert (read_sumocfg(cfg).begin, read_sumocfg(cfg).end) == expected
+    cfg.write_text(times("0", "1:30"))  # SUMO refuses MM:SS too
+    with pytest.raises(BehaveError, match="end must be seconds or HH:MM:SS"):
+        read_sumocfg(cfg)
+
+
 def bad_scenario_input(tmp: Path) -> list[tuple[dict, str]]:
     cfg = roads_scenario(tmp, roads=1, end=30.0)
     broken = tmp / "broken.sumocfg"
