@@ -11,6 +11,8 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from behaviors.files import atomic_write_text
+
 
 @contextmanager
 def progress(console: Console, label: str) -> Iterator[None]:
@@ -48,3 +50,14 @@ def numbered_checkpoints(run: Path) -> list[tuple[int, Path]]:
 def meets_lanekeeping_bar(mean: dict[str, float]) -> bool:
     """The project's lane-keeping bar: <= 1% colliding steps, no off-track, >= 80% of the limit."""
     return mean["colliding_steps_pct"] <= 1.0 and mean["off_tracks"] == 0 and mean["mean_speed_frac"] >= 0.8
+
+
+def write_measured_doc(path: Path, measured: str) -> None:
+    """Write a benchmark's doc: `measured` (title, command, table), then whatever the existing doc
+    holds from its first `## ` section on: notes written by hand about a measurement survive a re-run."""
+    kept = ""
+    if path.is_file():
+        old = path.read_text()
+        start = old.find("\n## ")
+        kept = old[start:] if start >= 0 else ""
+    atomic_write_text(path, measured.rstrip("\n") + "\n" + kept)

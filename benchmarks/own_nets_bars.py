@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from common import write_measured_doc
 
 from behaviors.export import read_fcd
-from behaviors.files import atomic_write_text
 from behaviors.populate import DEFAULT_POLICY, LONG_STANDSTILL_S, STANDSTILL_SPEED, config_from, populate
 from behaviors.realism import agents_path
 from behaviors.sumo_home import sumo_home
@@ -259,7 +259,7 @@ def main() -> None:
         "in the first half of the run, the share that arrived before it ended. `met`: the bar judged on all "
         "runs pooled (losses over all agent-hours, shares over all cohorts).\n\n" + text + "\n"
     )
-    atomic_write_text(args.doc, doc)
+    write_measured_doc(args.doc, doc)
 
 
 if __name__ == "__main__":

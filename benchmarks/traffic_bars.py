@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
+from common import write_measured_doc
 
 from behaviors.export import read_fcd
-from behaviors.files import atomic_write_text
 from behaviors.populate import PopulateConfig, populate
 from behaviors.realism import agents_path, measure, read_agents, read_lanes, write_report
 from sumo_scenarios import get_scenario
@@ -157,7 +157,7 @@ def main() -> None:
         "motorway: the curved 3-lane motorway with an on-ramp, weave and exit that no policy trains on, "
         "with its own flows (3,300 veh/h).\n\n" + text + "\n"
     )
-    atomic_write_text(args.doc, doc)
+    write_measured_doc(args.doc, doc)
 
 
 if __name__ == "__main__":
