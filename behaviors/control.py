@@ -9,6 +9,7 @@ business (env.py for training, populate.py for any network).
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -64,7 +65,8 @@ def road_frame(
     car: CarModel,
 ) -> RoadFrame:
     """Locate agents from their lane, lane position and lateral offset; `front` is SUMO's position."""
-    rows = np.array([geometry.lane_index[lane] for lane in readings.lane_id], np.int64)
+    lanes_seen = readings.lane_id
+    rows = np.fromiter(map(geometry.lane_index.__getitem__, lanes_seen), np.int64, len(lanes_seen))
     tangent, curvature = geometry.road_axis(rows, readings.lane_pos)
     heading = tangent + angle
     centre = front - (car.length / 2) * np.stack([np.cos(heading), np.sin(heading)], axis=1)
@@ -317,12 +319,8 @@ class Fleet:
         """Where the own and neighbouring lanes stop leading on, asked of SUMO only when an agent
         entered a new lane (a few agents per step), kept in lane coordinates otherwise."""
         r = self.rows
-        entered = [
-            i
-            for i, (now, before) in enumerate(zip(readings.lane_id, r.lane_id, strict=True))
-            if now != before
-        ]
-        for i in entered:
+        changed = np.fromiter(map(operator.ne, readings.lane_id, r.lane_id), bool, len(r.lane_id))
+        for i in np.flatnonzero(changed).tolist():
             lane = r.lane_id[i] = readings.lane_id[i]
             if lane.startswith(":"):  # a junction leads on to the lane SUMO routes it to
                 r.lane_ends[i] = readings.lane_pos[i] + JUNCTION_LEADS_ON

@@ -322,6 +322,8 @@ class AgentLog:
     def end(self, reasons: np.ndarray, time: float) -> None:
         """Close the rows whose reason is not empty and drop them (as the fleet drops them)."""
         ending = reasons != ""
+        if not ending.any():
+            return
         for k in np.flatnonzero(ending):
             self.ended.append(self._row(int(k), str(reasons[k]), time))
         keep = ~ending
