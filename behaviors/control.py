@@ -16,10 +16,10 @@ import numpy as np
 
 from behaviors.actuation import Actuation, CarModel, LaneDriving, actuate, actuate_lanes
 from behaviors.geometry import RoadGeometry
-from behaviors.lanes import LaneAgents, Surroundings, observe_lanes
+from behaviors.lanes import SEARCH_RADIUS, LaneAgents, Surroundings, observe_lanes
 from behaviors.lanes import surroundings as lane_surroundings
 from behaviors.rewards import NO_PROGRESS_SPEED
-from behaviors.sensors import AgentFrame, observe
+from behaviors.sensors import AgentFrame, Neighbours, neighbours, observe
 from behaviors.shield import safe_speed, search_reach, side_limits, surroundings
 from behaviors.sim import AgentReadings, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
@@ -253,14 +253,18 @@ class Fleet:
             if (rows < 0).any():
                 raise RuntimeError("Fleet.sense with agents SUMO no longer has: keep() them out first")
             self.rows.vehicle_rows = rows
+        reach = search_reach(float(self.rows.speed.max(initial=0.0)), self.dt, self.car)
+        near = None
         with self.timer.phase("sensors"):
-            if self.driver == "traffic":
-                obs = self._observe_lanes(sim, readings, vehicles, rows)
+            if self.driver == "traffic":  # one neighbour search for the lanes and the shield
+                radius = max(SEARCH_RADIUS, reach) if self.shield else SEARCH_RADIUS
+                near = neighbours(vehicles.position[rows], vehicles.position, radius, exclude=rows)
+                obs = self._observe_lanes(sim, readings, vehicles, rows, near)
             else:
                 obs = self._observe(readings, vehicles, rows, with_id)
         if self.shield:
             with self.timer.phase("shield"):
-                self._shield(vehicles, rows)
+                self._shield(vehicles, rows, reach, near)
         return obs
 
     def _observe(self, readings: AgentReadings, vehicles: VehicleState, rows: np.ndarray, with_id: bool):
@@ -278,7 +282,12 @@ class Fleet:
         return observe(agents, centres, rows, self.geometry, r.behaviour_id if with_id else None)
 
     def _observe_lanes(
-        self, sim: SumoSim, readings: AgentReadings, vehicles: VehicleState, rows: np.ndarray
+        self,
+        sim: SumoSim,
+        readings: AgentReadings,
+        vehicles: VehicleState,
+        rows: np.ndarray,
+        near: Neighbours,
     ) -> np.ndarray:
         """The traffic observation (lanes.py); also keeps what the traffic reward needs."""
         r, g = self.rows, self.geometry
@@ -312,7 +321,7 @@ class Fleet:
             fast_side_sign=-1.0 if g.lefthand else 1.0,
         )
         speeds[rows] = r.speed
-        r.around = around = lane_surroundings(agents, vehicles.position, speeds, rows, g)
+        r.around = around = lane_surroundings(agents, vehicles.position, speeds, rows, g, near)
         return observe_lanes(agents, around)
 
     def _refresh_lane_ends(self, sim: SumoSim, readings: AgentReadings) -> None:
@@ -413,15 +422,17 @@ class Fleet:
         over_slow = (readings.lateral_pos < -half_room) & slow_exists & short[:, 2]
         return over_fast | over_slow
 
-    def _shield(self, vehicles: VehicleState, rows: np.ndarray) -> None:
-        """Side limits and speed caps for the next action (SUMO cars leading agents at SUMO's speed)."""
+    def _shield(
+        self, vehicles: VehicleState, rows: np.ndarray, reach: float, near: Neighbours | None
+    ) -> None:
+        """Side limits and speed caps for the next action (SUMO cars leading agents at SUMO's speed);
+        `reach` bounds the search, `near` is the sensors' search if they made one as wide."""
         r = self.rows
         f = r.frame
         assert f is not None
-        reach = search_reach(float(r.speed.max(initial=0.0)), self.dt, self.car)
         road_axis = f.heading - r.angle  # lanes run along the road, not along a swerving car
         fronts = vehicles.position
-        around = surroundings(fronts[rows], road_axis, fronts, rows, self.car, reach)
+        around = surroundings(fronts[rows], road_axis, fronts, rows, self.car, reach, near)
         agent_of = np.full(len(vehicles.ids), -1, np.int64)
         agent_of[rows] = np.arange(len(rows))
         leader_speed = np.zeros(len(rows))

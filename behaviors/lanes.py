@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviors.geometry import RoadGeometry
-from behaviors.sensors import neighbours
+from behaviors.sensors import Neighbours, neighbours, within
 
 SPEED_SCALE = 40.0
 """m/s: speeds are divided by this."""
@@ -33,6 +33,8 @@ MAX_LANES_SEEN = 3
 OTHER_LENGTH = 5.0
 """m: length assumed for other vehicles (gap = distance between front bumpers - length)."""
 OTHER_WIDTH = 1.8
+SEARCH_RADIUS = GAP_RANGE + OTHER_LENGTH
+"""m between front bumpers: the farthest a neighbour within GAP_RANGE can be."""
 
 NEIGHBOUR_SLOTS = ("leader", "follower", "fast_leader", "fast_follower", "slow_leader", "slow_follower")
 """Order of the six neighbours: own lane, the fast-side lane, the slow-side lane."""
@@ -184,17 +186,21 @@ def surroundings(
     speeds: np.ndarray,
     agent_rows: np.ndarray,
     geometry: RoadGeometry,
+    near: Neighbours | None = None,
 ) -> Surroundings:
     """Nearest leader and follower in the own, fast-side and slow-side lane of every agent.
 
     A vehicle counts in every lane its body overlaps (a car mid-change blocks both lanes);
     one alongside counts as a leader or follower with gap 0. `positions`/`speeds` cover all
-    vehicles (SUMO's too); `agent_rows[i]` is agent i's own row there.
+    vehicles (SUMO's too); `agent_rows[i]` is agent i's own row there. `near`: the pairs of a
+    neighbour search already made with at least SEARCH_RADIUS (one search serves the shield too).
     """
     n = len(agents.speed)
     gap = np.full((n, 6), np.inf)
     other = np.full((n, 6), np.nan)
-    q, m, dx, dy, _ = neighbours(agents.front, positions, GAP_RANGE + OTHER_LENGTH, exclude=agent_rows)
+    if near is None:
+        near = neighbours(agents.front, positions, SEARCH_RADIUS, exclude=agent_rows)
+    q, m, dx, dy, _ = within(near, SEARCH_RADIUS)
     if len(q):
         along, across = lane_coordinates(
             geometry, agents.lane_row, agents.shape_pos, agents.front, q, np.stack([dx, dy], axis=1)

@@ -212,6 +212,12 @@ Neighbours = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 """(query rows, point rows, x offsets, y offsets, squared distances); offsets are point - query."""
 
 
+def within(near: Neighbours, radius: float) -> Neighbours:
+    """The pairs of a search with a larger radius that are closer than `radius`."""
+    keep = np.flatnonzero(near[4] < radius**2)
+    return near[0][keep], near[1][keep], near[2][keep], near[3][keep], near[4][keep]
+
+
 def neighbour_pairs(query: np.ndarray, points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """All (query row, point row) pairs closer than `radius`, sorted by query row."""
     q, m, _, _, _ = neighbours(query, points, radius)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviors.actuation import CarModel
-from behaviors.sensors import neighbours
+from behaviors.sensors import Neighbours, neighbours, within
 
 SIDE_MARGIN = 0.3
 """Metres of lateral clearance kept between two cars side by side (a pair ends up twice this apart)."""
@@ -62,6 +62,7 @@ def surroundings(
     self_rows: np.ndarray,
     car: CarModel,
     reach: float,
+    near: Neighbours | None = None,
 ) -> Surroundings:
     """Side room and leader of every agent, from front bumpers (SUMO's vehicle positions).
 
@@ -70,13 +71,14 @@ def surroundings(
     So everything here is measured between front bumpers, along and across `axis`, the direction
     of the road at each agent (not its heading: a swerving car's frame would tilt the gaps to the
     cars beside it). `points` holds every vehicle's front, row `self_rows[i]` being agent i;
-    all cars are taken to be `car`-sized. `reach` bounds the search, in metres.
+    all cars are taken to be `car`-sized. `reach` bounds the search, in metres; `near`, if given,
+    holds the pairs of a search already made with at least that radius.
     """
     n = len(front)
     room = np.full((n, 2), np.inf)
     leader = np.full(n, -1, np.int64)
     gap_ahead = np.full(n, np.inf)
-    q, m, dx, dy, _ = neighbours(front, points, reach, self_rows)
+    q, m, dx, dy, _ = within(near, reach) if near is not None else neighbours(front, points, reach, self_rows)
     if len(q) == 0:
         return Surroundings(room, leader, gap_ahead)
     cos, sin = np.cos(axis)[q], np.sin(axis)[q]

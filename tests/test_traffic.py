@@ -25,6 +25,8 @@ from behaviors.lanes import (
     surroundings,
 )
 from behaviors.rewards import TrafficStep, TrafficWeights, traffic_rewards
+from behaviors.sensors import neighbours
+from behaviors.shield import surroundings as shield_surroundings
 from behaviors.sim import SimOptions, SumoSim
 from behaviors.sumo_home import sumo_binary
 from behaviors.timing import PhaseTimer
@@ -138,6 +140,34 @@ def test_each_of_many_agents_gets_its_own_nearest_leader_and_follower():
     assert list(around.other_speed[:, 0]) == list(np.arange(count) + 10.0)
     assert around.gap[1:, 1] == pytest.approx(np.full(count - 1, 7.0))
     assert list(around.other_speed[1:, 1]) == list(np.arange(count - 1) + 10.0)
+
+
+def test_one_wider_neighbour_search_serves_the_lanes_and_the_shield_as_their_own_searches_do():
+    rng = np.random.default_rng(5)
+    count, cars = 40, 200
+    x = rng.uniform(-480.0, 480.0, count + cars)
+    lane = rng.integers(0, 3, count + cars)
+    fronts = np.stack([x, (lane - 1) * 3.5 + rng.normal(0.0, 0.4, count + cars)], axis=1)
+    speeds = rng.uniform(15.0, 35.0, count + cars)
+    agents = one_agent(
+        front=fronts[:count], lane_row=np.array([STRAIGHT.lane_index[f"e_{k}"] for k in lane[:count]]),
+        shape_pos=x[:count] + 500.0, lane_number=lane[:count],
+        **{k: np.repeat(v, count, axis=0) for k, v in vars(one_agent()).items()
+           if isinstance(v, np.ndarray) and k not in ("front", "lane_row", "shape_pos", "lane_number")},
+    )  # fmt: skip
+    rows = np.arange(count)
+    wide = neighbours(fronts[rows], fronts, 400.0, exclude=rows)
+    alone = surroundings(agents, fronts, speeds, rows, STRAIGHT)
+    shared = surroundings(agents, fronts, speeds, rows, STRAIGHT, wide)
+    np.testing.assert_array_equal(alone.gap, shared.gap)
+    np.testing.assert_array_equal(alone.other_speed, shared.other_speed)
+    assert np.isfinite(alone.gap[:, 0]).sum() > count // 2  # most agents have a leader to find
+    axis = np.zeros(count)
+    own = shield_surroundings(fronts[rows], axis, fronts, rows, CarModel(), 120.0)
+    given = shield_surroundings(fronts[rows], axis, fronts, rows, CarModel(), 120.0, wide)
+    for name in ("side_room", "leader", "leader_gap"):
+        np.testing.assert_array_equal(getattr(own, name), getattr(given, name))
+    assert (own.leader >= 0).sum() > count // 2
 
 
 def test_a_car_astride_two_lanes_blocks_both_and_missing_lanes_are_walls():
