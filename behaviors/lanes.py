@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviors.geometry import RoadGeometry
-from behaviors.sensors import Neighbours, neighbours, within
+from behaviors.sensors import Neighbours, nearest_per_slot, neighbours, within
 
 SPEED_SCALE = 40.0
 """m/s: speeds are divided by this."""
@@ -228,28 +228,6 @@ def surroundings(
     other[fast_missing, 2:4] = np.nan
     other[slow_missing, 4:6] = np.nan
     return Surroundings(gap, other)
-
-
-DISTANCE_RESOLUTION = 1e-3
-"""m: neighbours whose distances differ by less than this are ranked by their order instead."""
-_ENTRY_BITS = 26  # up to 67 million candidate entries per call
-
-
-def nearest_per_slot(slots: int, slot: np.ndarray, distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(slots that have an entry, index of each one's nearest entry), in one pass over all entries.
-
-    Each entry's distance (to a millimetre) and index are packed into one integer, so a single
-    unbuffered minimum per slot finds the nearest: one sort of six candidate lists costs more.
-    """
-    if len(slot) >= 1 << _ENTRY_BITS:
-        raise ValueError("too many neighbour entries for one call")
-    low = distance.min(initial=0.0)
-    rank = np.round((distance - low) / DISTANCE_RESOLUTION).astype(np.int64)
-    packed = (rank << _ENTRY_BITS) | np.arange(len(slot), dtype=np.int64)
-    best = np.full(slots, np.iinfo(np.int64).max)
-    np.minimum.at(best, slot, packed)
-    found = np.flatnonzero(best != np.iinfo(np.int64).max)
-    return found, best[found] & ((1 << _ENTRY_BITS) - 1)
 
 
 def observe_lanes(agents: LaneAgents, around: Surroundings) -> np.ndarray:

@@ -218,6 +218,28 @@ def within(near: Neighbours, radius: float) -> Neighbours:
     return near[0][keep], near[1][keep], near[2][keep], near[3][keep], near[4][keep]
 
 
+DISTANCE_RESOLUTION = 1e-3
+"""m: neighbours whose distances differ by less than this are ranked by their order instead."""
+_ENTRY_BITS = 26  # up to 67 million candidate entries per call
+
+
+def nearest_per_slot(slots: int, slot: np.ndarray, distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(slots that have an entry, index of each one's nearest entry), in one pass over all entries.
+
+    Each entry's distance (to a millimetre) and index are packed into one integer, so a single
+    unbuffered minimum per slot finds the nearest: sorting the candidates costs more.
+    """
+    if len(slot) >= 1 << _ENTRY_BITS:
+        raise ValueError("too many neighbour entries for one call")
+    low = distance.min(initial=0.0)
+    rank = np.round((distance - low) / DISTANCE_RESOLUTION).astype(np.int64)
+    packed = (rank << _ENTRY_BITS) | np.arange(len(slot), dtype=np.int64)
+    best = np.full(slots, np.iinfo(np.int64).max)
+    np.minimum.at(best, slot, packed)
+    found = np.flatnonzero(best != np.iinfo(np.int64).max)
+    return found, best[found] & ((1 << _ENTRY_BITS) - 1)
+
+
 def neighbour_pairs(query: np.ndarray, points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """All (query row, point row) pairs closer than `radius`, sorted by query row."""
     q, m, _, _, _ = neighbours(query, points, radius)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviors.actuation import CarModel
-from behaviors.sensors import Neighbours, neighbours, within
+from behaviors.sensors import Neighbours, nearest_per_slot, neighbours, within
 
 SIDE_MARGIN = 0.3
 """Metres of lateral clearance kept between two cars side by side (a pair ends up twice this apart)."""
@@ -91,10 +91,9 @@ def surroundings(
         np.minimum.at(room[:, side], q[mask], side_gap[mask])
     path = np.flatnonzero((side_gap < PATH_MARGIN) & (ahead > 0))  # cars ahead in the agent's way
     q, m, gap = q[path], m[path], ahead[path] - car.length
-    order = np.argsort(q * (4 * reach) + gap, kind="stable")  # by agent, then nearest first
-    first = order[np.r_[True, q[order][1:] != q[order][:-1]]] if len(order) else order
-    leader[q[first]] = m[first]
-    gap_ahead[q[first]] = gap[first]
+    agent, first = nearest_per_slot(n, q, gap)
+    leader[agent] = m[first]
+    gap_ahead[agent] = gap[first]
     return Surroundings(room, leader, gap_ahead)
 
 

@@ -19,13 +19,12 @@ from behaviors.lanes import (
     TRAFFIC_OBS_SIZE,
     TRAFFIC_SLICES,
     LaneAgents,
-    nearest_per_slot,
     observe_lanes,
     road_coordinates,
     surroundings,
 )
 from behaviors.rewards import TrafficStep, TrafficWeights, traffic_rewards
-from behaviors.sensors import neighbours
+from behaviors.sensors import nearest_per_slot, neighbours
 from behaviors.shield import surroundings as shield_surroundings
 from behaviors.sim import SimOptions, SumoSim
 from behaviors.sumo_home import sumo_binary
