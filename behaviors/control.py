@@ -25,6 +25,7 @@ from behaviors.sim import AgentReadings, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
 
 DRIVERS = ("paper", "traffic")
+"""Driver models: the paper's TORCS state, reward and heading model, or lanes.py's traffic driver."""
 HANDOVER_DISTANCE = 250.0
 HANDOVER_SECONDS = 10.0
 """SUMO takes an agent whose lane ends within max(250 m, 10 s at its speed) while another lane goes on."""
@@ -39,7 +40,6 @@ JUNCTION_LEADS_ON = 1e4
 """m: inside a junction every lane counts as leading on; SUMO is asked again on the next lane."""
 ONE_LANE_HORIZON = 1000.0
 """m: how far along its route an agent looks for a road of one car lane (SUMO drives it there)."""
-"""Driver models: the paper's TORCS state, reward and heading model, or lanes.py's traffic driver."""
 
 
 @dataclass(frozen=True)

@@ -44,10 +44,10 @@ START_SPEED_FRACTION = 0.7
 START_HEADWAY = 1.5
 """Seconds of headway between start places at speed (plus two car lengths)."""
 TRAINING_ROADS = "roads"
+"""Scenario name of the five closed roads the traffic driver trains on (the shipped policy's)."""
 TRAINING_ROADS_WITH_RAMPS = "roads+ramps"
-"""The five closed training roads (the shipped traffic policy's), or all seven: two more with ramps."""
+"""All seven training roads: the five and two more with an on-ramp and an exit."""
 ROAD_FAMILIES = (TRAINING_ROADS, TRAINING_ROADS_WITH_RAMPS)
-"""Scenario name of the family of closed roads the traffic driver trains on (sumo_scenarios)."""
 ROUTE_SECONDS = 3600.0
 """Looping routes are unrolled for at least this much driving at 50 m/s."""
 
