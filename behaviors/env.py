@@ -47,7 +47,9 @@ TRAINING_ROADS = "roads"
 """Scenario name of the five closed roads the traffic driver trains on (the shipped policy's)."""
 TRAINING_ROADS_WITH_RAMPS = "roads+ramps"
 """All seven training roads: the five and two more with an on-ramp and an exit."""
-ROAD_FAMILIES = (TRAINING_ROADS, TRAINING_ROADS_WITH_RAMPS)
+TRAINING_ROADS_WITH_QUEUES = "roads+queues"
+"""The five closed roads, and in some episodes a queue crawling in the slow lane beside the flow."""
+ROAD_FAMILIES = (TRAINING_ROADS, TRAINING_ROADS_WITH_RAMPS, TRAINING_ROADS_WITH_QUEUES)
 ROUTE_SECONDS = 3600.0
 """Looping routes are unrolled for at least this much driving at 50 m/s."""
 
@@ -84,7 +86,7 @@ class EnvConfig:
             raise BehaveError(f"unknown driver '{self.driver}' (choose from {', '.join(DRIVERS)})")
         if self.driver == "traffic" and self.scenario not in (*ROAD_FAMILIES, "ring"):
             raise BehaveError(
-                f"the traffic driver trains on '{TRAINING_ROADS}', '{TRAINING_ROADS_WITH_RAMPS}' or 'ring'"
+                f"the traffic driver trains on {', '.join(repr(f) for f in ROAD_FAMILIES)} or 'ring'"
             )
         if isinstance(self.scenario, str) and self.scenario not in (*SCENARIO_NAMES, *ROAD_FAMILIES):
             get_scenario(self.scenario)  # raises with the list of choices

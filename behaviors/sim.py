@@ -266,6 +266,10 @@ class SumoSim:
         v = self._sumo.vehicle
         return list(v.getRoute(vid)[v.getRouteIndex(vid) + 1 :])
 
+    def hold_lane(self, vid: str) -> None:
+        """SUMO's driver keeps `vid` in its lane: it follows and never changes lanes."""
+        self._sumo.vehicle.setLaneChangeMode(vid, 0)
+
     def set_speed_factor(self, vid: str, factor: float) -> None:
         self._sumo.vehicle.setSpeedFactor(vid, factor)
 

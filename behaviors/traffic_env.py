@@ -20,6 +20,7 @@ from behaviors.env import (
     KEEPER_TYPE,
     OVERTAKER_TYPE,
     ROAD_FAMILIES,
+    TRAINING_ROADS_WITH_QUEUES,
     TRAINING_ROADS_WITH_RAMPS,
     BehaveEnv,
     EnvConfig,
@@ -46,6 +47,17 @@ INSERT_TRIES = 10
 """Steps an agent may wait for a free place before it sits this episode out."""
 QUEUE_GAP = 20.0
 """m: an agent this close behind its leader is queueing, not failing to make progress."""
+CRAWL_EPISODES = 0.5
+"""Share of `roads+queues` episodes with a queue crawling in the slow lane while the other lanes
+flow, as before an exit or a merge. Without it the policy never met such a lane in training and
+braked beside a queue as if its first car were the agent's leader (README, Known limitations)."""
+CRAWL_CARS = (4, 12)
+CRAWL_SPEED = (0.0, 0.2)
+"""Speed of the queue as a share of the limit: from standing to about 25 km/h on a motorway."""
+CRAWL_GAP = (2.5, 5.0)
+"""m from one queueing car's rear to the next one's front (SUMO inserts no closer than minGap)."""
+CAR_LENGTH = 5.0
+"""m: the length of SUMO's cars in the training roads' vTypes."""
 
 
 class NoRoomError(BehaveError):
@@ -66,6 +78,15 @@ def background_speed_factors(count: int, rng: np.random.Generator) -> np.ndarray
     return np.where(slow, rng.uniform(*SLOW_FACTOR, count), rng.uniform(*FAST_FACTOR, count))
 
 
+def queue_places(edge_length: float, rng: np.random.Generator) -> np.ndarray:
+    """Front positions on one edge for a queue of cars, its head first, as many as fit."""
+    cars = int(rng.integers(CRAWL_CARS[0], CRAWL_CARS[1] + 1))
+    head = rng.uniform(0.5, 1.0) * (edge_length - 1.0)
+    steps = CAR_LENGTH + rng.uniform(*CRAWL_GAP, cars)
+    fronts = head - np.concatenate(([0.0], np.cumsum(steps[:-1])))
+    return fronts[fronts >= CAR_LENGTH + 0.5]
+
+
 class TrafficEnv(BehaveEnv):
     """Keepers and overtakers among SUMO's traffic (driver "traffic"); same interfaces as BehaveEnv."""
 
@@ -77,6 +98,7 @@ class TrafficEnv(BehaveEnv):
             if config.scenario in ROAD_FAMILIES
             else [get_scenario(str(config.scenario))]
         )
+        self.queues = config.scenario == TRAINING_ROADS_WITH_QUEUES
         self._geometries: dict[str, RoadGeometry] = {}
         self.scenario = self.roads[0]
         self.geometry = self._geometry(self.scenario)
@@ -129,6 +151,8 @@ class TrafficEnv(BehaveEnv):
         lanes = min(self.geometry.edges[e].lanes for e in self.lap)
         lap_km = sum(self.geometry.edges[e].length for e in self.lap) / 1000.0
         count = int(rng.uniform(*cfg.traffic_density) * lap_km * lanes)
+        if self.queues and rng.random() < CRAWL_EPISODES:
+            self._add_queue(routes, weights)
         for k, factor in enumerate(background_speed_factors(count, rng)):
             vid = f"traffic_{k}"
             sim.add_free_vehicle(vid, routes[int(rng.choice(len(routes), p=weights))], BACKGROUND_TYPE)
@@ -140,6 +164,19 @@ class TrafficEnv(BehaveEnv):
         vehicles = sim.read_vehicles()
         self.live_obs = self.fleet.sense(sim, vehicles, True)
         return self.live_obs
+
+    def _add_queue(self, routes: list[str], weights: np.ndarray) -> None:
+        """A queue in the slow lane of one edge: SUMO's cars that crawl and never change lanes, so
+        the queue stays while the lanes beside it flow (it moves on around the closed road)."""
+        sim, rng = self.sim, self._rng
+        assert sim is not None
+        k = int(rng.choice(len(self.lap), p=weights))
+        speed = rng.uniform(*CRAWL_SPEED) * self.geometry.edges[self.lap[k]].speed
+        for n, front in enumerate(queue_places(self.geometry.edges[self.lap[k]].length, rng)):
+            vid = f"queue_{n}"
+            sim.add_vehicle(vid, routes[k], BACKGROUND_TYPE, lane=0, pos=float(front), speed=float(speed))
+            sim.set_max_speed(vid, max(float(speed), 0.1))
+            sim.hold_lane(vid)
 
     def _insert_agents(self, routes: list[str], weights: np.ndarray) -> None:
         """Agents at free places of the road, at the speed SUMO finds safe there."""
