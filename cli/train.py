@@ -55,7 +55,8 @@ def train(
     scenario: Annotated[
         str,
         typer.Option(
-            help="ring, highway or tiny; roads = the traffic driver's 5 closed roads, roads+ramps = 7"
+            help="ring, highway or tiny; roads = the traffic driver's 5 closed roads, roads+ramps = 7,"
+            " roads+queues = the 5 with a queue in the slow lane in half the episodes"
         ),
     ] = DEFAULTS.scenario,
     out: Annotated[

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from behaviors import traffic_env
 from behaviors.actuation import CarModel, LaneDriving, actuate_lanes
 from behaviors.control import Fleet
 from behaviors.env import make_env
@@ -29,6 +30,7 @@ from behaviors.shield import surroundings as shield_surroundings
 from behaviors.sim import SimOptions, SumoSim
 from behaviors.sumo_home import sumo_binary
 from behaviors.timing import PhaseTimer
+from behaviors.traffic_env import CAR_LENGTH, CRAWL_CARS, CRAWL_GAP, CRAWL_SPEED, queue_places
 from sumo_scenarios import get_scenario
 from sumo_scenarios.osm_like import build_osm_like
 
@@ -328,6 +330,40 @@ def test_traffic_env_runs_an_episode_among_sumo_cars():
         assert steps == 40 or batch.terminated.any()
         first = env.reset_arrays(seed=3)
         np.testing.assert_array_equal(first, obs)  # one seed, one episode
+    finally:
+        env.close()
+
+
+def test_queue_places_fit_the_edge_head_first_with_at_least_sumos_gap_between_cars():
+    rng = np.random.default_rng(0)
+    for length in (30.0, 120.0, 600.0):
+        for _ in range(50):
+            fronts = queue_places(length, rng)
+            assert (fronts >= CAR_LENGTH + 0.5).all() and (fronts <= length - 1.0).all()
+            gaps = -np.diff(fronts) - CAR_LENGTH  # rear of one car to the front of the next behind it
+            assert (gaps >= CRAWL_GAP[0]).all() and (gaps <= CRAWL_GAP[1]).all()
+            assert len(fronts) <= CRAWL_CARS[1]
+    assert max(len(queue_places(600.0, rng)) for _ in range(50)) == CRAWL_CARS[1]
+
+
+def test_roads_with_queues_have_a_queue_crawling_in_the_slow_lane_while_the_others_flow(monkeypatch):
+    monkeypatch.setattr(traffic_env, "CRAWL_EPISODES", 1.0)  # a queue in every episode
+    env = make_env("roads+queues", behaviour="multi", overtakers=2, keepers=2, driver="traffic", seed=1,
+                   max_steps=25)  # fmt: skip
+    try:
+        env.reset_arrays(seed=1)
+        sim = env.sim
+        for _ in range(25):
+            if not env.agents:
+                break
+            env.step_arrays(np.tile([0.0, 0.3, 0.0], (len(env.agents), 1)).astype(np.float32))
+        vehicles = sim.read_vehicles()
+        queue = np.array([vid.startswith("queue_") for vid in vehicles.ids])
+        limit = max(edge.speed for edge in env.geometry.edges.values())
+        assert queue.sum() >= CRAWL_CARS[0] - 1  # all but perhaps one behind a SUMO car
+        assert (vehicles.speed[queue] <= CRAWL_SPEED[1] * limit + 1.0).all()
+        assert {sim._sumo.vehicle.getLaneIndex(vid) for vid in np.array(vehicles.ids)[queue]} == {0}
+        assert np.median(vehicles.speed[~queue]) > 2 * CRAWL_SPEED[1] * limit  # the other lanes flow
     finally:
         env.close()
 
