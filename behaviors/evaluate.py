@@ -19,7 +19,7 @@ import pandas as pd
 import torch
 
 from behaviors.ddpg.checkpoint import load_actor, load_checkpoint
-from behaviors.ddpg.networks import Actor
+from behaviors.ddpg.networks import Actor, driving_function
 from behaviors.env import BEHAVIOURS, KEEPER_TYPE, OVERTAKER_TYPE, BehaveEnv, EnvConfig, StepBatch, create_env
 from behaviors.errors import BehaveError
 from behaviors.export import fcd_options, read_fcd
@@ -48,9 +48,10 @@ Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
 def actor_policy(actor: Actor) -> Policy:
     """The whole fleet through one batched forward pass."""
 
+    drive = driving_function(actor)
+
     def act(obs: np.ndarray, slots: np.ndarray) -> np.ndarray:
-        with torch.inference_mode():
-            return actor(torch.as_tensor(obs)).numpy()
+        return drive(np.asarray(obs, np.float32))
 
     return act
 

@@ -41,6 +41,7 @@ import torch
 from behaviors.actuation import CarModel
 from behaviors.control import Fleet
 from behaviors.ddpg.checkpoint import load_actor, load_checkpoint
+from behaviors.ddpg.networks import driving_function
 from behaviors.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.errors import BehaveError
 from behaviors.export import FCD_SUFFIXES, fcd_options, require_projection, seal_fcd
@@ -623,13 +624,13 @@ def load_policy(config: PopulateConfig) -> tuple[Callable[[np.ndarray], np.ndarr
         raise BehaveError(f"{config.policy} is an overtaking policy: use --overtakers, not --keepers")
     actor = load_actor(config.policy)
     half = None if config.precision == "float32" else copy.deepcopy(actor).to(torch.bfloat16)
+    drive = driving_function(actor)
 
     def act(obs: np.ndarray) -> np.ndarray:
-        with torch.inference_mode():
-            x = torch.from_numpy(obs)
-            if half is not None and use_bfloat16(config.precision, len(obs)):
-                return half(x.to(torch.bfloat16)).float().numpy()
-            return actor(x).numpy()
+        if half is not None and use_bfloat16(config.precision, len(obs)):
+            with torch.inference_mode():
+                return half(torch.from_numpy(obs).to(torch.bfloat16)).float().numpy()
+        return drive(obs)
 
     driver = "traffic" if obs_dim == TRAFFIC_OBS_SIZE else "paper"
     return act, obs_dim != OBS_SIZE, driver

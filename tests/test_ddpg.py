@@ -25,7 +25,7 @@ from behaviors.ddpg import (
     save_checkpoint,
     soft_update,
 )
-from behaviors.ddpg.networks import INITIAL_BRAKE_BIAS
+from behaviors.ddpg.networks import INITIAL_BRAKE_BIAS, driving_function
 from behaviors.errors import BehaveError
 
 torch.set_num_threads(1)
@@ -97,6 +97,31 @@ def test_actor_outputs_stay_in_range_for_extreme_inputs() -> None:
     middle = actor(torch.zeros(1, 65))[0]  # small final init: first actions near the centre
     expected = torch.tensor([0.0, 0.5, float(torch.sigmoid(torch.tensor(INITIAL_BRAKE_BIAS)))])
     torch.testing.assert_close(middle, expected, atol=0.05, rtol=0)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_driving_function_gives_the_actors_actions_bit_for_bit_as_fleets_grow_and_shrink(threads) -> None:
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        torch.manual_seed(0)
+        actor = Actor(40, (64, 32))
+        with torch.no_grad():
+            actor.head.weight.mul_(300.0)  # actions spread over their ranges, not all near the centre
+        drive = driving_function(actor)
+        rng = np.random.default_rng(0)
+        kept = []
+        for n in (1, 7, 300, 3, 1000, 64):
+            obs = rng.standard_normal((n, 40)).astype(np.float32)
+            with torch.inference_mode():
+                expected = actor(torch.from_numpy(obs)).numpy()
+            got = drive(obs)
+            np.testing.assert_array_equal(got, expected)
+            kept.append((got, got.copy()))
+        assert all(np.array_equal(a, b) for a, b in kept)  # later calls leave earlier actions alone
+        assert np.ptp(kept[-2][0][:, 0]) > 1.0  # steer spread over most of [-1, 1]
+    finally:
+        torch.set_num_threads(previous)
 
 
 def test_buffer_stores_every_agents_rows_and_wraps_by_value() -> None:
