@@ -16,7 +16,7 @@ import numpy as np
 
 from behaviors.actuation import Actuation, CarModel, LaneDriving, actuate, actuate_lanes
 from behaviors.geometry import RoadGeometry
-from behaviors.lanes import SEARCH_RADIUS, LaneAgents, Surroundings, observe_lanes
+from behaviors.lanes import SEARCH_RADIUS, LaneAgents, Surroundings, lane_coordinates, observe_lanes
 from behaviors.lanes import surroundings as lane_surroundings
 from behaviors.rewards import NO_PROGRESS_SPEED
 from behaviors.sensors import AgentFrame, Neighbours, neighbours, observe
@@ -38,6 +38,9 @@ SIGNAL_SECONDS = 5.0
 route (the policies never saw a traffic light), and gives it back once none is."""
 JUNCTION_LEADS_ON = 1e4
 """m: inside a junction every lane counts as leading on; SUMO is asked again on the next lane."""
+PROJECTION_TRUST = 2.0
+"""m: a projected lane position this far from where the car's speed took it is asked of SUMO
+(SUMO moved the car some other way)."""
 ONE_LANE_HORIZON = 1000.0
 """m: how far along its route an agent looks for a road of one car lane (SUMO drives it there)."""
 
@@ -60,13 +63,13 @@ class RoadFrame:
 def road_frame(
     geometry: RoadGeometry,
     readings: AgentReadings,
+    rows: np.ndarray,
     front: np.ndarray,
     angle: np.ndarray,
     car: CarModel,
 ) -> RoadFrame:
-    """Locate agents from their lane, lane position and lateral offset; `front` is SUMO's position."""
-    lanes_seen = readings.lane_id
-    rows = np.fromiter(map(geometry.lane_index.__getitem__, lanes_seen), np.int64, len(lanes_seen))
+    """Locate agents from their lane (`rows` in the geometry's lane tables), lane position and
+    lateral offset; `front` is SUMO's position."""
     tangent, curvature = geometry.road_axis(rows, readings.lane_pos)
     heading = tangent + angle
     centre = front - (car.length / 2) * np.stack([np.cos(heading), np.sin(heading)], axis=1)
@@ -114,6 +117,8 @@ class AgentRows:
         default_factory=lambda: np.zeros(0)
     )  # route's next 1-lane road, lane coords
     handed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # SUMO's driver has the car
+    lane_row: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # at the last read, -1 = none
+    shape_pos: np.ndarray = field(default_factory=lambda: np.zeros(0))  # along that lane's shape, metres
     around: Surroundings | None = None
 
     def take(self, mask: np.ndarray) -> AgentRows:
@@ -209,6 +214,8 @@ class Fleet:
             best_end=np.concatenate([r.best_end, np.zeros(n)]),
             one_lane_at=np.concatenate([r.one_lane_at, np.full(n, np.inf)]),
             handed=np.concatenate([r.handed, np.zeros(n, bool)]),
+            lane_row=np.concatenate([r.lane_row, np.full(n, -1, np.int64)]),
+            shape_pos=np.concatenate([r.shape_pos, zeros]),
         )
 
     def keep(self, mask: np.ndarray) -> None:
@@ -248,28 +255,72 @@ class Fleet:
     def sense(self, sim: SumoSim, vehicles: VehicleState, with_id: bool) -> np.ndarray:
         """Read the agents' lanes from SUMO and return their observations [N, 65 or 66]."""
         with self.timer.phase("read"):
-            readings = sim.read_agents(self.ids)
             rows = self.locate(vehicles)
             if (rows < 0).any():
                 raise RuntimeError("Fleet.sense with agents SUMO no longer has: keep() them out first")
             self.rows.vehicle_rows = rows
+            readings, lane_rows = self._read_lanes(sim, vehicles, rows)
         reach = search_reach(float(self.rows.speed.max(initial=0.0)), self.dt, self.car)
         near = None
         with self.timer.phase("sensors"):
             if self.driver == "traffic":  # one neighbour search for the lanes and the shield
                 radius = max(SEARCH_RADIUS, reach) if self.shield else SEARCH_RADIUS
                 near = neighbours(vehicles.position[rows], vehicles.position, radius, exclude=rows)
-                obs = self._observe_lanes(sim, readings, vehicles, rows, near)
+                obs = self._observe_lanes(sim, readings, lane_rows, vehicles, rows, near)
             else:
-                obs = self._observe(readings, vehicles, rows, with_id)
+                obs = self._observe(readings, lane_rows, vehicles, rows, with_id)
         if self.shield:
             with self.timer.phase("shield"):
                 self._shield(vehicles, rows, reach, near)
         return obs
 
-    def _observe(self, readings: AgentReadings, vehicles: VehicleState, rows: np.ndarray, with_id: bool):
+    def _read_lanes(
+        self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray
+    ) -> tuple[AgentReadings, np.ndarray]:
+        """Each agent's lane from SUMO, and its lane rows in the geometry.
+
+        Where an agent is still in the lane of the last read, its lane position and lateral
+        offset come from its position projected onto that lane's shape, which is how SUMO placed
+        it: two libsumo calls fewer per agent and step (1,000 agents: 2,000 calls). The others
+        (a new lane, a new agent, a junction lane drawn with no length, or a projection that
+        lands far from where the car's speed took it) are read from SUMO. Measured against
+        SUMO's own values (tests/test_traffic.py): equal to 1e-8 m in 99% of steps, 3 mm at most.
+        """
+        r, g = self.rows, self.geometry
+        lane_id = sim.read_lanes(r.ids)
+        lane_rows = np.fromiter(map(g.lane_index.__getitem__, lane_id), np.int64, len(lane_id))
+        lane_pos, lateral = np.empty(len(lane_id)), np.empty(len(lane_id))
+        same = np.flatnonzero((lane_rows == r.lane_row) & (g.lane_length_scale[lane_rows] > 0))
+        guess = r.shape_pos[same] + vehicles.speed[rows[same]] * self.dt  # SUMO moves by v(t+dt) * dt
+        along, across = lane_coordinates(
+            g,
+            lane_rows[same],
+            guess,
+            vehicles.position[rows[same]],
+            np.arange(len(same)),
+            np.zeros((len(same), 2)),
+        )
+        lane_pos[same] = (guess + along) / g.lane_length_scale[lane_rows[same]]
+        lateral[same] = -across if g.lefthand else across  # SUMO's posLat grows to the fast side
+        derived = np.zeros(len(lane_id), bool)
+        derived[same] = (np.abs(along) < PROJECTION_TRUST) & (np.abs(across) < g.lane_width[lane_rows[same]])
+        if not derived.all():
+            ask = np.flatnonzero(~derived)
+            lane_pos[ask], lateral[ask] = sim.read_lane_places([r.ids[k] for k in ask])
+        r.lane_row, r.shape_pos = lane_rows, lane_pos * g.lane_length_scale[lane_rows]
+        return AgentReadings(lane_id, lane_pos, lateral), lane_rows
+
+    def _observe(
+        self,
+        readings: AgentReadings,
+        lane_rows: np.ndarray,
+        vehicles: VehicleState,
+        rows: np.ndarray,
+        with_id: bool,
+    ) -> np.ndarray:
         r = self.rows
-        r.frame = frame = road_frame(self.geometry, readings, vehicles.position[rows], r.angle, self.car)
+        front = vehicles.position[rows]
+        r.frame = frame = road_frame(self.geometry, readings, lane_rows, front, r.angle, self.car)
         centres = vehicles.position.copy()
         centres[rows] = frame.centre  # agents' centres are known exactly; others' fronts suffice
         agents = AgentFrame(
@@ -285,13 +336,14 @@ class Fleet:
         self,
         sim: SumoSim,
         readings: AgentReadings,
+        lane_rows: np.ndarray,
         vehicles: VehicleState,
         rows: np.ndarray,
         near: Neighbours,
     ) -> np.ndarray:
         """The traffic observation (lanes.py); also keeps what the traffic reward needs."""
         r, g = self.rows, self.geometry
-        r.frame = frame = road_frame(g, readings, vehicles.position[rows], r.angle, self.car)
+        r.frame = frame = road_frame(g, readings, lane_rows, vehicles.position[rows], r.angle, self.car)
         number = g.lane_number[frame.lane_row]
         count = g.lane_num_lanes[frame.lane_row]
         normal = frame.on_normal_edge

@@ -206,9 +206,15 @@ class SumoSim:
 
     def read_agents(self, ids: Sequence[str]) -> AgentReadings:
         """Lane, lane position and lateral offset of the controlled vehicles."""
+        return AgentReadings(self.read_lanes(ids), *self.read_lane_places(ids))
+
+    def read_lanes(self, ids: Sequence[str]) -> list[str]:
+        return list(map(self._fast.getLaneID, ids))
+
+    def read_lane_places(self, ids: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+        """Lane position and lateral offset from the lane centre of each vehicle."""
         v, n = self._fast, len(ids)
-        return AgentReadings(
-            list(map(v.getLaneID, ids)),
+        return (
             np.fromiter(map(v.getLanePosition, ids), float, n),
             np.fromiter(map(v.getLateralLanePosition, ids), float, n),
         )

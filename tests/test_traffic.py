@@ -24,6 +24,7 @@ from behaviors.lanes import (
     road_coordinates,
     surroundings,
 )
+from behaviors.populate import config_from, populate
 from behaviors.rewards import TrafficStep, TrafficWeights, traffic_rewards
 from behaviors.sensors import nearest_per_slot, neighbours
 from behaviors.shield import surroundings as shield_surroundings
@@ -366,6 +367,34 @@ def test_roads_with_queues_have_a_queue_crawling_in_the_slow_lane_while_the_othe
         assert np.median(vehicles.speed[~queue]) > 2 * CRAWL_SPEED[1] * limit  # the other lanes flow
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("name", ["motorway3_lefthand", "carriageway2"])
+def test_lane_places_derived_from_positions_are_sumos_own(tmp_path, monkeypatch, name):
+    """Agents still in last step's lane get lane position and lateral offset by projection, not
+    from SUMO: on a curved left-hand net and on 3.2 m lanes they equal SUMO's to the millimetre."""
+    derive = Fleet._read_lanes
+    worst, asked = [0.0, 0.0], []
+
+    def checked(self, sim, vehicles, rows):
+        calls = []
+        read = sim.read_lane_places
+        monkeypatch.setattr(sim, "read_lane_places", lambda ids: calls.append(len(ids)) or read(ids))
+        readings, lane_rows = derive(self, sim, vehicles, rows)
+        monkeypatch.setattr(sim, "read_lane_places", read)
+        truth = sim.read_agents(self.rows.ids)
+        assert readings.lane_id == truth.lane_id
+        worst[0] = max(worst[0], float(np.abs(truth.lane_pos - readings.lane_pos).max(initial=0.0)))
+        worst[1] = max(worst[1], float(np.abs(truth.lateral_pos - readings.lateral_pos).max(initial=0.0)))
+        asked.append((sum(calls), len(rows)))
+        return readings, lane_rows
+
+    monkeypatch.setattr(Fleet, "_read_lanes", checked)
+    net = build_osm_like(name, tmp_path / name)
+    populate(config_from(net.sumocfg, share=0.5, seed=1, duration=40.0, fcd=tmp_path / "f.xml"))
+    assert worst[0] < 0.01 and worst[1] < 0.001, worst
+    read, agent_steps = np.sum(asked, axis=0)
+    assert agent_steps > 1000 and read < 0.1 * agent_steps  # SUMO asked for a few, not all
 
 
 def exit_net(tmp: Path) -> Path:
