@@ -124,11 +124,15 @@ def _is_lefthand(net: Path) -> bool:
 
 def group_names(ids: pd.Series, types: pd.Series | None, group_by: str) -> pd.Series:
     """Group of each vehicle: by vType (learned keepers, overtakers, everyone else is SUMO's) or
-    by the id without its trailing number (`keeper_3` -> `keeper`, `flow.12` -> `flow`)."""
+    by the id without its trailing number (`keeper_3` -> `keeper`, `flow.12` -> `flow`).
+
+    SUMO names a type it copied for one vehicle (when that vehicle's parameters are changed)
+    `<type>@<vehicle>`: the copy belongs to the type's group."""
     if group_by == "type":
         if types is None:
             raise BehaveError("the FCD has no type column: use --group-by id-prefix")
-        return types.astype(object).map(GROUPS_OF_TYPE).fillna(OTHER_GROUP).astype(str)
+        base = types.astype(str).str.split("@", n=1).str[0]
+        return base.map(GROUPS_OF_TYPE).fillna(OTHER_GROUP).astype(str)
     if group_by == "id-prefix":
         return ids.astype(str).str.replace(r"[._#-]?\d+$", "", regex=True).replace("", "vehicles")
     raise BehaveError(f"unknown grouping {group_by!r}: choose one of {', '.join(GROUP_BY)}")
@@ -230,8 +234,12 @@ def _lane_layout(lane_ids: pd.Index, lanes: Lanes) -> pd.DataFrame:
 def _vehicle_table(
     df: pd.DataFrame, first: np.ndarray, ids: pd.Index, group_by: str, lengths: Mapping[str, float] | None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Group name and length of each vehicle (rows `first` are each vehicle's first record)."""
-    types = df["type"].iloc[first].reset_index(drop=True) if "type" in df.columns else None
+    """Group name and length of each vehicle (rows `first` are each vehicle's first record).
+
+    The group is the vType of a vehicle's last record: `populate --share` makes a scenario's car
+    an agent after SUMO wrote its first record with the scenario's type."""
+    last = np.r_[first[1:] - 1, len(df) - 1]
+    types = df["type"].iloc[last].reset_index(drop=True) if "type" in df.columns else None
     group = group_names(pd.Series(ids), types, group_by).to_numpy()
     known = dict(lengths or {})
     if types is None:

@@ -8,8 +8,10 @@ Each net is run as a user's scenario: `behave populate --sumocfg NET.sumocfg --s
 --no-shield`, so a fifth of its passenger cars, on the same routes as SUMO's, are driven by the
 policy. Measured per run from the summary, the per-agent table and the FCD: losses per
 agent-hour, agents and SUMO's cars standing still for 30 s or more, the share of vehicles that
-departed in the run's first half and reached the end of their route, handovers to SUMO.
-Prints the table and writes it to docs/own_nets.md with the commit measured.
+departed in the run's first half and reached the end of their route, handovers to SUMO. A
+second table holds issue 11's driving bars (`behave report` on each run's FCD), so that the
+left-hand copy is compared with its keep-right original: there passes belong on the right.
+Prints the tables and writes them to docs/own_nets.md with the commit measured.
 
     python benchmarks/own_nets_bars.py --seeds 0,1 --duration 300
 """
@@ -27,10 +29,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from common import write_measured_doc
+from traffic_bars import DRIVING_BARS, bars_table
 
 from behaviors.export import read_fcd
 from behaviors.populate import DEFAULT_POLICY, LONG_STANDSTILL_S, STANDSTILL_SPEED, config_from, populate
-from behaviors.realism import agents_path
+from behaviors.realism import agents_path, measure, read_agents, read_lanes
 from behaviors.sumo_home import sumo_home
 from sumo_scenarios.build import write_xml
 from sumo_scenarios.osm_like import OSM_LIKE_NAMES, build_osm_like
@@ -154,13 +157,17 @@ def facts_of(fcd: pd.DataFrame, agents: pd.DataFrame, summary, step: float, dura
     )
 
 
-def run(sumocfg: Path, seed: int, duration: float, fcd: Path, policy: Path) -> Facts:
+def run(sumocfg: Path, seed: int, duration: float, fcd: Path, policy: Path) -> tuple[Facts, pd.DataFrame]:
+    """One run's facts and its realism report's table (groups keepers, overtakers, sumo)."""
     config = config_from(
         sumocfg, share=SHARE, seed=seed, duration=duration, fcd=fcd, shield=False, policy=policy
     )
     summary = populate(config)
-    agents = pd.read_csv(agents_path(fcd))
-    return facts_of(read_fcd(fcd), agents, summary, config.step_length, duration)
+    agents = read_agents(agents_path(fcd))
+    assert agents is not None  # populate writes it beside the FCD
+    trace = read_fcd(fcd)
+    report = measure(trace, read_lanes(config.net), agents=agents)
+    return facts_of(trace, agents, summary, config.step_length, duration), report.table
 
 
 @dataclass(frozen=True)
@@ -226,15 +233,18 @@ def main() -> None:
     args = parser.parse_args()
     measured = commit()
     columns: dict[str, Facts] = {}
+    driving: dict[str, tuple[pd.DataFrame, dict]] = {}
     for name, sumocfg in scenarios(args.out / "nets", args.nets.split(",")).items():
         for seed in (int(s) for s in args.seeds.split(",")):
-            facts = run(
+            facts, report = run(
                 sumocfg, seed, args.duration, args.out / name / f"s{seed}" / "fcd.parquet", args.policy
             )
             columns[f"{name} s{seed}"] = facts
+            driving[f"{name} s{seed}"] = (report, {})
             print(f"{name} seed {seed}: {facts}", flush=True)
     text = table(columns)
-    print(text)
+    driving_text = bars_table(DRIVING_BARS, driving)
+    print(text, driving_text, sep="\n\n")
     command = f"python benchmarks/own_nets_bars.py --seeds {args.seeds} --duration {args.duration:g}"
     if args.nets != parser.get_default("nets"):
         command += f" --nets {args.nets}"
@@ -257,7 +267,11 @@ def main() -> None:
         "Standing still: SUMO speed below 0.1 m/s for 30 s or more at a stretch (agents: the per-agent "
         "table; SUMO's vehicles: their FCD rows). Reaching the route end: of the vehicles that departed "
         "in the first half of the run, the share that arrived before it ended. `met`: the bar judged on all "
-        "runs pooled (losses over all agent-hours, shares over all cohorts).\n\n" + text + "\n"
+        "runs pooled (losses over all agent-hours, shares over all cohorts).\n\n" + text + "\n\n"
+        "How the agents drive there: issue 11's driving bars, measured by `behave report` on the same "
+        "runs' FCD (each car's first 10 s left out; keepers and overtakers as the share drew them). On "
+        "the left-hand net the overtaking side is the right, and the rightmost-lane row reads the "
+        "outer (slow) lane, lane 0. `met`: every run meets the bar.\n\n" + driving_text + "\n"
     )
     write_measured_doc(args.doc, doc)
 

@@ -58,11 +58,15 @@ def worst(table: pd.DataFrame, key: str) -> float:
     return max(known) if known else math.nan
 
 
-BARS = (
+RUN_BARS = (
     Bar("collisions + off-tracks per agent-hour (shield off)", "<= 0.5",
         lambda t, f: f["losses_per_hour"], lambda v: v <= 0.5),
     Bar("agent-steps whose speed the shield set (shield on)", "<= 5%",
         lambda t, f: f.get("shield_speed_share", math.nan), lambda v: v <= 0.05),
+)  # fmt: skip
+"""Bars on a run's summary."""
+
+DRIVING_BARS = (
     Bar("keepers: lane changes per vehicle-km", "<= 0.15",
         lambda t, f: cell(t, "lane_changes_per_km", KEEPERS), lambda v: v <= 0.15),
     Bar("keepers: share of time in the rightmost lane", "<= 75%",
@@ -83,6 +87,8 @@ BARS = (
     Bar("following time with headway < 1 s (worse group)", "<= 10%",
         lambda t, f: worst(t, "thw_below_limit"), lambda v: v <= 0.10),
 )  # fmt: skip
+"""Bars on the realism report of a run's FCD (the run's facts are not needed)."""
+BARS = RUN_BARS + DRIVING_BARS
 
 
 def net_setups() -> dict[str, dict]:
@@ -113,6 +119,20 @@ def fmt(value: float, threshold: str) -> str:
     return f"{100 * value:.1f}%" if threshold.endswith("%") else f"{value:.2f}"
 
 
+def bars_table(bars: tuple[Bar, ...], columns: dict[str, tuple[pd.DataFrame, dict]]) -> str:
+    """One row per bar, a column per run (its report table and facts); met = every run meets it."""
+    header = ["bar", "threshold", *columns, "met"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for bar in bars:
+        values = [bar.value(table, facts) for table, facts in columns.values()]
+        known = [v for v in values if not math.isnan(v)]
+        met = "yes" if known and all(bar.ok(v) for v in known) else ("-" if not known else "no")
+        lines.append(
+            "| " + " | ".join([bar.name, bar.threshold, *(fmt(v, bar.threshold) for v in values), met]) + " |"
+        )
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--policy", type=Path, default=Path("behaviors/pretrained/traffic.pt"))
@@ -137,16 +157,7 @@ def main() -> None:
             columns[f"{name} s{seed}"] = (report.table, facts)
             print(f"{name} seed {seed}: {facts['summary'].agent_steps} agent-steps, "
                   f"{facts['losses_per_hour']:.2f} losses per agent-hour")  # fmt: skip
-    header = ["bar", "threshold", *columns, "met"]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for bar in BARS:
-        values = [bar.value(table, facts) for table, facts in columns.values()]
-        known = [v for v in values if not math.isnan(v)]
-        met = "yes" if known and all(bar.ok(v) for v in known) else ("-" if not known else "no")
-        lines.append(
-            "| " + " | ".join([bar.name, bar.threshold, *(fmt(v, bar.threshold) for v in values), met]) + " |"
-        )
-    text = "\n".join(lines)
+    text = bars_table(BARS, columns)
     print(text)
     doc = (
         "# Traffic-driver policy against issue 11's bars\n\n"

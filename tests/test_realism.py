@@ -175,6 +175,15 @@ def test_groups_by_type_or_id_prefix() -> None:
         group_names(ids, types, "colour")
 
 
+def test_a_scenario_car_made_an_agent_after_its_first_record_is_in_the_agents_group() -> None:
+    t = np.arange(0, 30, STEP)
+    agent = drive("flow.3", "behave_keeper@flow.3", t, 30 * t, np.full(len(t), 1.6), 30.0)
+    agent.loc[0, "type"] = "car"  # SUMO wrote the scenario's type before populate converted it
+    other = drive("flow.4", "car", t, 30 * t + 100, np.full(len(t), 1.6), 30.0)
+    table = measure(pd.concat([agent, other]), Lanes()).table
+    assert table.loc["vehicles", "keepers"] == 1 and table.loc["vehicles", "sumo"] == 1
+
+
 def test_losses_per_agent_hour() -> None:
     agents = pd.DataFrame({
         "id": ["k0", "k1", "o0"], "vtype": ["behave_keeper", "behave_keeper", "behave_overtaker"],
