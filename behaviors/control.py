@@ -9,7 +9,6 @@ business (env.py for training, populate.py for any network).
 
 from __future__ import annotations
 
-import operator
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -110,7 +109,6 @@ class AgentRows:
     lane_number: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # -1 = not sensed yet
     lane_count: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     lane_changed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # at the last sensing
-    lane_id: list[str] = field(default_factory=list)  # lane of the cached lane ends
     lane_ends: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # own/fast/slow, lane coords
     best_end: np.ndarray = field(default_factory=lambda: np.zeros(0))  # the edge's farthest-leading lane
     one_lane_at: np.ndarray = field(
@@ -209,7 +207,6 @@ class Fleet:
             lane_number=np.concatenate([r.lane_number, np.full(n, -1, np.int64)]),
             lane_count=np.concatenate([r.lane_count, np.zeros(n, np.int64)]),
             lane_changed=np.concatenate([r.lane_changed, np.zeros(n, bool)]),
-            lane_id=r.lane_id + [""] * n,
             lane_ends=np.concatenate([r.lane_ends, np.zeros((n, 3))]),
             best_end=np.concatenate([r.best_end, np.zeros(n)]),
             one_lane_at=np.concatenate([r.one_lane_at, np.full(n, np.inf)]),
@@ -259,14 +256,16 @@ class Fleet:
             if (rows < 0).any():
                 raise RuntimeError("Fleet.sense with agents SUMO no longer has: keep() them out first")
             self.rows.vehicle_rows = rows
+            last_lane_rows = self.rows.lane_row
             readings, lane_rows = self._read_lanes(sim, vehicles, rows)
+            entered = np.flatnonzero(lane_rows != last_lane_rows)  # new agents' last row is -1
         reach = search_reach(float(self.rows.speed.max(initial=0.0)), self.dt, self.car)
         near = None
         with self.timer.phase("sensors"):
             if self.driver == "traffic":  # one neighbour search for the lanes and the shield
                 radius = max(SEARCH_RADIUS, reach) if self.shield else SEARCH_RADIUS
                 near = neighbours(vehicles.position[rows], vehicles.position, radius, exclude=rows)
-                obs = self._observe_lanes(sim, readings, lane_rows, vehicles, rows, near)
+                obs = self._observe_lanes(sim, readings, lane_rows, entered, vehicles, rows, near)
             else:
                 obs = self._observe(readings, lane_rows, vehicles, rows, with_id)
         if self.shield:
@@ -337,11 +336,13 @@ class Fleet:
         sim: SumoSim,
         readings: AgentReadings,
         lane_rows: np.ndarray,
+        entered: np.ndarray,
         vehicles: VehicleState,
         rows: np.ndarray,
         near: Neighbours,
     ) -> np.ndarray:
-        """The traffic observation (lanes.py); also keeps what the traffic reward needs."""
+        """The traffic observation (lanes.py); also keeps what the traffic reward needs.
+        `entered`: the agents in another lane than at the last read."""
         r, g = self.rows, self.geometry
         r.frame = frame = road_frame(g, readings, lane_rows, vehicles.position[rows], r.angle, self.car)
         number = g.lane_number[frame.lane_row]
@@ -351,7 +352,7 @@ class Fleet:
         r.lane_number = np.where(normal, number, r.lane_number)
         r.lane_count = np.where(normal, count, r.lane_count)
         speeds = vehicles.speed.copy()  # SUMO's; the agents' own are put in below
-        self._refresh_lane_ends(sim, readings)
+        self._refresh_lane_ends(sim, readings, entered)
         self._hand_over(sim, readings, count, normal, speeds[rows])
         agents = LaneAgents(
             front=vehicles.position[rows],
@@ -376,13 +377,12 @@ class Fleet:
         r.around = around = lane_surroundings(agents, vehicles.position, speeds, rows, g, near)
         return observe_lanes(agents, around)
 
-    def _refresh_lane_ends(self, sim: SumoSim, readings: AgentReadings) -> None:
-        """Where the own and neighbouring lanes stop leading on, asked of SUMO only when an agent
-        entered a new lane (a few agents per step), kept in lane coordinates otherwise."""
+    def _refresh_lane_ends(self, sim: SumoSim, readings: AgentReadings, entered: np.ndarray) -> None:
+        """Where the own and neighbouring lanes stop leading on, asked of SUMO only for the agents
+        that `entered` a new lane (a few per step), kept in lane coordinates otherwise."""
         r = self.rows
-        changed = np.fromiter(map(operator.ne, readings.lane_id, r.lane_id), bool, len(r.lane_id))
-        for i in np.flatnonzero(changed).tolist():
-            lane = r.lane_id[i] = readings.lane_id[i]
+        for i in entered.tolist():
+            lane = readings.lane_id[i]
             if lane.startswith(":"):  # a junction leads on to the lane SUMO routes it to
                 r.lane_ends[i] = readings.lane_pos[i] + JUNCTION_LEADS_ON
                 continue
