@@ -272,6 +272,11 @@ class SumoSim:
         v = self._sumo.vehicle
         return list(v.getRoute(vid)[v.getRouteIndex(vid) + 1 :])
 
+    def vtype_size(self, vtype: str) -> tuple[float, float]:
+        """A vehicle type's length and minGap (the gap it keeps standing), metres."""
+        t = self._sumo.vehicletype
+        return t.getLength(vtype), t.getMinGap(vtype)
+
     def hold_lane(self, vid: str) -> None:
         """SUMO's driver keeps `vid` in its lane: it follows and never changes lanes."""
         self._sumo.vehicle.setLaneChangeMode(vid, 0)

@@ -54,10 +54,9 @@ braked beside a queue as if its first car were the agent's leader (README, Known
 CRAWL_CARS = (4, 12)
 CRAWL_SPEED = (0.0, 0.2)
 """Speed of the queue as a share of the limit: from standing to about 25 km/h on a motorway."""
-CRAWL_GAP = (2.5, 5.0)
-"""m from one queueing car's rear to the next one's front (SUMO inserts no closer than minGap)."""
-CAR_LENGTH = 5.0
-"""m: the length of SUMO's cars in the training roads' vTypes."""
+CRAWL_GAP = (0.0, 2.5)
+"""m from one queueing car's rear to the next one's front, beyond the vType's minGap (SUMO
+inserts no closer)."""
 
 
 class NoRoomError(BehaveError):
@@ -78,13 +77,16 @@ def background_speed_factors(count: int, rng: np.random.Generator) -> np.ndarray
     return np.where(slow, rng.uniform(*SLOW_FACTOR, count), rng.uniform(*FAST_FACTOR, count))
 
 
-def queue_places(edge_length: float, rng: np.random.Generator) -> np.ndarray:
-    """Front positions on one edge for a queue of cars, its head first, as many as fit."""
+def queue_places(
+    edge_length: float, car_length: float, min_gap: float, rng: np.random.Generator
+) -> np.ndarray:
+    """Front positions on one edge for a queue of cars of a vType's length and minGap, its head
+    first, as many as fit."""
     cars = int(rng.integers(CRAWL_CARS[0], CRAWL_CARS[1] + 1))
     head = rng.uniform(0.5, 1.0) * (edge_length - 1.0)
-    steps = CAR_LENGTH + rng.uniform(*CRAWL_GAP, cars)
+    steps = car_length + min_gap + rng.uniform(*CRAWL_GAP, cars)
     fronts = head - np.concatenate(([0.0], np.cumsum(steps[:-1])))
-    return fronts[fronts >= CAR_LENGTH + 0.5]
+    return fronts[fronts >= car_length + 0.5]
 
 
 class TrafficEnv(BehaveEnv):
@@ -171,8 +173,9 @@ class TrafficEnv(BehaveEnv):
         sim, rng = self.sim, self._rng
         assert sim is not None
         k = int(rng.choice(len(self.lap), p=weights))
-        speed = rng.uniform(*CRAWL_SPEED) * self.geometry.edges[self.lap[k]].speed
-        for n, front in enumerate(queue_places(self.geometry.edges[self.lap[k]].length, rng)):
+        edge = self.geometry.edges[self.lap[k]]
+        speed = rng.uniform(*CRAWL_SPEED) * edge.speed
+        for n, front in enumerate(queue_places(edge.length, *sim.vtype_size(BACKGROUND_TYPE), rng)):
             vid = f"queue_{n}"
             sim.add_vehicle(vid, routes[k], BACKGROUND_TYPE, lane=0, pos=float(front), speed=float(speed))
             sim.set_max_speed(vid, max(float(speed), 0.1))

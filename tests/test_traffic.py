@@ -31,7 +31,7 @@ from behaviors.shield import surroundings as shield_surroundings
 from behaviors.sim import SimOptions, SumoSim
 from behaviors.sumo_home import sumo_binary
 from behaviors.timing import PhaseTimer
-from behaviors.traffic_env import CAR_LENGTH, CRAWL_CARS, CRAWL_GAP, CRAWL_SPEED, queue_places
+from behaviors.traffic_env import CRAWL_CARS, CRAWL_GAP, CRAWL_SPEED, queue_places
 from sumo_scenarios import get_scenario
 from sumo_scenarios.osm_like import build_osm_like
 
@@ -337,14 +337,15 @@ def test_traffic_env_runs_an_episode_among_sumo_cars():
 
 def test_queue_places_fit_the_edge_head_first_with_at_least_sumos_gap_between_cars():
     rng = np.random.default_rng(0)
+    car, min_gap = 5.0, 2.5
     for length in (30.0, 120.0, 600.0):
         for _ in range(50):
-            fronts = queue_places(length, rng)
-            assert (fronts >= CAR_LENGTH + 0.5).all() and (fronts <= length - 1.0).all()
-            gaps = -np.diff(fronts) - CAR_LENGTH  # rear of one car to the front of the next behind it
-            assert (gaps >= CRAWL_GAP[0]).all() and (gaps <= CRAWL_GAP[1]).all()
+            fronts = queue_places(length, car, min_gap, rng)
+            assert (fronts >= car + 0.5).all() and (fronts <= length - 1.0).all()
+            gaps = -np.diff(fronts) - car  # rear of one car to the front of the next behind it
+            assert (gaps >= min_gap + CRAWL_GAP[0]).all() and (gaps <= min_gap + CRAWL_GAP[1]).all()
             assert len(fronts) <= CRAWL_CARS[1]
-    assert max(len(queue_places(600.0, rng)) for _ in range(50)) == CRAWL_CARS[1]
+    assert max(len(queue_places(600.0, car, min_gap, rng)) for _ in range(50)) == CRAWL_CARS[1]
 
 
 def test_roads_with_queues_have_a_queue_crawling_in_the_slow_lane_while_the_others_flow(monkeypatch):
