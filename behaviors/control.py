@@ -256,9 +256,7 @@ class Fleet:
             if (rows < 0).any():
                 raise RuntimeError("Fleet.sense with agents SUMO no longer has: keep() them out first")
             self.rows.vehicle_rows = rows
-            last_lane_rows = self.rows.lane_row
-            readings, lane_rows = self._read_lanes(sim, vehicles, rows)
-            entered = np.flatnonzero(lane_rows != last_lane_rows)  # new agents' last row is -1
+            readings, lane_rows, entered = self._read_lanes(sim, vehicles, rows)
         reach = search_reach(float(self.rows.speed.max(initial=0.0)), self.dt, self.car)
         near = None
         with self.timer.phase("sensors"):
@@ -275,8 +273,9 @@ class Fleet:
 
     def _read_lanes(
         self, sim: SumoSim, vehicles: VehicleState, rows: np.ndarray
-    ) -> tuple[AgentReadings, np.ndarray]:
-        """Each agent's lane from SUMO, and its lane rows in the geometry.
+    ) -> tuple[AgentReadings, np.ndarray, np.ndarray]:
+        """Each agent's lane from SUMO, its lane rows in the geometry, and which agents entered
+        another lane than at the last read (new agents too: their last row is -1).
 
         Where an agent is still in the lane of the last read, its lane position and lateral
         offset come from its position projected onto that lane's shape, which is how SUMO placed
@@ -289,7 +288,8 @@ class Fleet:
         lane_id = sim.read_lanes(r.ids)
         lane_rows = np.fromiter(map(g.lane_index.__getitem__, lane_id), np.int64, len(lane_id))
         lane_pos, lateral = np.empty(len(lane_id)), np.empty(len(lane_id))
-        same = np.flatnonzero((lane_rows == r.lane_row) & (g.lane_length_scale[lane_rows] > 0))
+        stayed = lane_rows == r.lane_row
+        same = np.flatnonzero(stayed & (g.lane_length_scale[lane_rows] > 0))
         guess = r.shape_pos[same] + vehicles.speed[rows[same]] * self.dt  # SUMO moves by v(t+dt) * dt
         along, across = lane_coordinates(
             g,
@@ -307,7 +307,7 @@ class Fleet:
             ask = np.flatnonzero(~derived)
             lane_pos[ask], lateral[ask] = sim.read_lane_places([r.ids[k] for k in ask])
         r.lane_row, r.shape_pos = lane_rows, lane_pos * g.lane_length_scale[lane_rows]
-        return AgentReadings(lane_id, lane_pos, lateral), lane_rows
+        return AgentReadings(lane_id, lane_pos, lateral), lane_rows, np.flatnonzero(~stayed)
 
     def _observe(
         self,

@@ -381,14 +381,14 @@ def test_lane_places_derived_from_positions_are_sumos_own(tmp_path, monkeypatch,
         calls = []
         read = sim.read_lane_places
         monkeypatch.setattr(sim, "read_lane_places", lambda ids: calls.append(len(ids)) or read(ids))
-        readings, lane_rows = derive(self, sim, vehicles, rows)
+        readings, lane_rows, entered = derive(self, sim, vehicles, rows)
         monkeypatch.setattr(sim, "read_lane_places", read)
         truth = sim.read_agents(self.rows.ids)
         assert readings.lane_id == truth.lane_id
         worst[0] = max(worst[0], float(np.abs(truth.lane_pos - readings.lane_pos).max(initial=0.0)))
         worst[1] = max(worst[1], float(np.abs(truth.lateral_pos - readings.lateral_pos).max(initial=0.0)))
         asked.append((sum(calls), len(rows)))
-        return readings, lane_rows
+        return readings, lane_rows, entered
 
     monkeypatch.setattr(Fleet, "_read_lanes", checked)
     net = build_osm_like(name, tmp_path / name)
