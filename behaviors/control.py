@@ -41,7 +41,9 @@ PROJECTION_TRUST = 2.0
 """m: a projected lane position this far from where the car's speed took it is asked of SUMO
 (SUMO moved the car some other way)."""
 ONE_LANE_HORIZON = 1000.0
-"""m: how far along its route an agent looks for a road of one car lane (SUMO drives it there)."""
+"""m: how far beyond the end of its edge an agent looks along its route for a road of one car lane
+(SUMO drives it there); counted from the edge's end, since it is looked up once per lane entered and
+a motorway edge may be longer than any horizon."""
 
 
 @dataclass(frozen=True)
@@ -395,12 +397,14 @@ class Fleet:
 
     def _one_lane_road_at(self, edge: str, route_ahead: list[str]) -> float:
         """Metres from the start of `edge` to the first road of the route ahead with fewer than two car
-        lanes (a ramp, a slip road, a street), within ONE_LANE_HORIZON; inf if there is none."""
+        lanes (a ramp, a slip road, a street), within ONE_LANE_HORIZON of the end of `edge`; inf if
+        there is none."""
         edges = self.geometry.edges
         info = edges.get(edge)
-        at = info.length if info is not None else 0.0
+        edge_length = info.length if info is not None else 0.0
+        at = edge_length
         for following in route_ahead:
-            if at > ONE_LANE_HORIZON:
+            if at - edge_length > ONE_LANE_HORIZON:
                 break
             info = edges.get(following)
             if info is None or info.lanes < 2:

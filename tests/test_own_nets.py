@@ -18,22 +18,9 @@ from behaviors.realism import agents_path
 from sumo_scenarios.osm_like import build_osm_like
 
 DURATION = 100.0  # s: cars leaving in the first ~20 s reach the end of the exit ramp
-STANDING_IN_THE_WEAVE = (
-    "a through overtaker in the free fast lane of the 3.2 m net brakes to a stop and stands 10-12 s "
-    "beside the queue in the lane on its slow side, where the deceleration lane begins; SUMO's cars "
-    "in the same run stand at most 3.2 s. The policy slows to stay behind a car 5-8 m ahead in the "
-    "neighbouring lane (with that car taken away it does not brake): it never trained beside a "
-    "queueing lane. Before 51d4ca6 agents given back on the deceleration lane drifted off its edge"
-)
 
 
-@pytest.mark.parametrize(
-    "name",
-    [
-        "motorway3_lefthand",
-        pytest.param("carriageway2", marks=pytest.mark.xfail(strict=True, reason=STANDING_IN_THE_WEAVE)),
-    ],
-)
+@pytest.mark.parametrize("name", ["motorway3_lefthand", "carriageway2"])
 def test_agents_drive_an_osm_like_net_and_leave_it_by_the_exit(tmp_path, name):
     net = build_osm_like(name, tmp_path / name)
     fcd = tmp_path / "fcd.parquet"

@@ -12,7 +12,7 @@ import pytest
 
 from behaviors import traffic_env
 from behaviors.actuation import CarModel, LaneDriving, actuate_lanes
-from behaviors.control import Fleet
+from behaviors.control import HANDOVER_DISTANCE, Fleet
 from behaviors.env import make_env
 from behaviors.geometry import RoadGeometry, build_geometry, load_geometry
 from behaviors.lanes import (
@@ -555,3 +555,29 @@ def test_leaving_a_junctions_internal_lane_sideways_is_not_off_the_road(tmp_path
                 inside.append(bool(result.off_track[0]))
             sim.step()
     assert inside and not any(inside)
+
+
+def test_an_agent_in_the_fast_lane_is_handed_over_on_a_long_edge_well_before_its_exit_ramp(tmp_path):
+    """carriageway2's main edge is 1.2 km long, longer than the look-ahead for a one-lane ramp: an
+    agent leaving from the fast lane was handed over only on the 250 m deceleration section, where
+    SUMO's driver stopped it dead in the fast lane to wait for a gap, a queue forming behind it."""
+    built = build_osm_like("carriageway2", tmp_path)
+    route = ["m0", "m1", built.exit_edge]
+    with keeper_on(built.net, route, lane=1, pos=100.0, speed=30.0) as (sim, fleet):
+        first_handed_on, lowest_speed, lanes = None, 99.0, []
+        while "agent" in sim.vehicle_ids() and len(lanes) < 600:
+            readings = sim.read_agents(["agent"])
+            lanes.append(readings.lane_id[0])
+            fleet.sense(sim, sim.read_vehicles(), True)
+            if fleet.rows.handed[0] and first_handed_on is None:
+                first_handed_on = (readings.lane_id[0], float(readings.lane_pos[0]))
+            fleet.act(sim, np.array([[0.0, 0.25, 0.0]], np.float32))
+            sim.step()
+            if "agent" in sim.vehicle_ids():
+                lowest_speed = min(lowest_speed, float(sim.read_speeds(["agent"])[0]))
+        assert first_handed_on is not None and first_handed_on[0] == "m0_1"
+        edges = fleet.geometry.edges
+        ramp_ahead = edges["m0"].length + edges["m1"].length - first_handed_on[1]
+        assert ramp_ahead > 2 * HANDOVER_DISTANCE  # SUMO has the reach once per lane to cross
+        assert any(lane.startswith(built.exit_edge) for lane in lanes)
+        assert lowest_speed > 15.0
