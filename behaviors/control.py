@@ -30,6 +30,9 @@ HANDOVER_SECONDS = 10.0
 """SUMO takes an agent whose lane ends within max(250 m, 10 s at its speed) while another lane goes on."""
 HANDBACK_MARGIN = 100.0
 """m: the policy gets the car back only when its lane leads on this much beyond that reach."""
+HANDBACK_INSIDE = 0.2
+"""m: ... and only when its body is this far inside its lane's lines: SUMO may carry a car it took
+over the line into a lane that then drops, and leave it on the carriageway's edge."""
 LANE_END_MARGIN = 20.0
 SIGNAL_DISTANCE = 100.0
 SIGNAL_SECONDS = 5.0
@@ -422,7 +425,7 @@ class Fleet:
     ) -> None:
         """SUMO's strategic layer takes an agent whose lane stops leading on soon while another lane
         of its edge goes on (an exit or a lane drop ahead), or that is on a one-lane road, and
-        hands it back once it is on a lane that leads on; likewise at a red or yellow signal ahead.
+        hands it back once it is inside a lane that leads on; likewise at a red or yellow signal ahead.
         The policies learnt on roads where every lane goes on and no light turns red; SUMO knows
         where each route needs to be and stops at the line."""
         r = self.rows
@@ -433,7 +436,8 @@ class Fleet:
         ramp_reach = reach * (1 + np.maximum(r.lane_number, 0))
         ending = (own_left < reach) & (r.best_end > r.lane_ends[:, 0] + LANE_END_MARGIN)
         ending |= one_lane_left < ramp_reach  # leaving the carriageway: SUMO takes the car to the ramp
-        straddling = self._straddling_an_ending_lane(readings, lanes, reach)
+        half_room = self._half_room()
+        straddling = self._straddling_an_ending_lane(readings, lanes, reach, half_room)
         ending |= straddling
         signal = (
             sim.signal_ahead(r.ids, np.maximum(SIGNAL_DISTANCE, SIGNAL_SECONDS * r.speed))
@@ -448,6 +452,7 @@ class Fleet:
             & (one_lane_left >= ramp_reach + HANDBACK_MARGIN)
             & ~straddling
             & ~signal
+            & (np.abs(readings.lateral_pos) <= half_room - HANDBACK_INSIDE)
         )
         give = needs_sumo & ~r.handed
         take = r.handed & free
@@ -461,15 +466,18 @@ class Fleet:
         r.handed = (r.handed | give) & ~take
         r.speed = np.where(r.handed, sumo_speed, r.speed)  # SUMO drives them: their speed is SUMO's
 
+    def _half_room(self) -> np.ndarray:
+        """Metres each agent's centre may move from its lane centre before its body meets a line."""
+        assert self.rows.frame is not None
+        return (self.geometry.lane_width[self.rows.frame.lane_row] - self.car.width) / 2
+
     def _straddling_an_ending_lane(
-        self, readings: AgentReadings, lanes: np.ndarray, reach: np.ndarray
+        self, readings: AgentReadings, lanes: np.ndarray, reach: np.ndarray, half_room: np.ndarray
     ) -> np.ndarray:
         """Agents whose body reaches over the line into a neighbouring lane that ends within `reach`:
         where that lane drops, the road narrows under them. SUMO takes them and centres them in a
         lane that goes on (the policies never trained beside a lane drop)."""
         r = self.rows
-        assert r.frame is not None
-        half_room = (self.geometry.lane_width[r.frame.lane_row] - self.car.width) / 2
         leads = r.lane_ends - readings.lane_pos[:, None]
         short = (leads < reach[:, None]) & (r.lane_ends < r.best_end[:, None] - LANE_END_MARGIN)
         fast_exists = r.lane_number < lanes - 1

@@ -581,3 +581,24 @@ def test_an_agent_in_the_fast_lane_is_handed_over_on_a_long_edge_well_before_its
         assert ramp_ahead > 2 * HANDOVER_DISTANCE  # SUMO has the reach once per lane to cross
         assert any(lane.startswith(built.exit_edge) for lane in lanes)
         assert lowest_speed > 15.0
+
+
+def test_sumo_gives_an_agent_back_only_once_it_is_inside_its_lane(tmp_path):
+    """SUMO carried a keeper it had taken over the line into a dropping lane and, where the lane
+    dropped, left it on the carriageway's edge; given back there, its next step was off the road."""
+    net = exit_net(tmp_path)
+    with keeper_on(net, ["A", "B"], lane=1, pos=50.0, speed=25.0) as (sim, fleet):
+        sim.command_agents(["agent"], np.array([25.0]), np.array([-0.85]))  # on the line to lane 0
+        sim.step()
+        sim.hand_to_sumo(["agent"])
+        fleet.rows.handed[0] = True
+        given_back_at = None
+        for _ in range(100):
+            lateral = float(sim.read_agents(["agent"]).lateral_pos[0])
+            fleet.sense(sim, sim.read_vehicles(), True)
+            if not fleet.rows.handed[0]:
+                given_back_at = lateral
+                break
+            sim.step()
+        room = (3.5 - CarModel().width) / 2
+        assert given_back_at is not None and abs(given_back_at) <= room - 0.2
