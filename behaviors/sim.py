@@ -300,6 +300,10 @@ class SumoSim:
         v = self._sumo.vehicle
         for vid in ids:
             v.setSpeed(vid, -1.0)  # the agent's last commanded speed would otherwise hold for good
+            # and so would its last sideways move if it was too small for SUMO to ever complete
+            # (below ~0.5 mm): a pending request that overrules every lane change SUMO wants,
+            # strategic ones too (such a car stops at the end of an exit lane); 0 cancels it
+            v.changeSublane(vid, 0.0)
             v.setSpeedMode(vid, SUMO_SPEED_MODE)
             v.setLaneChangeMode(vid, SUMO_LANE_CHANGE_MODE)
             v.setParameter(vid, "laneChangeModel.lcAccelLat", "1.0")
