@@ -608,13 +608,7 @@ def test_sumo_changes_lanes_for_an_agent_whose_last_sideways_move_was_too_small_
     """SUMO keeps a `changeSublane` of less than ~0.5 mm pending for good, and a pending request
     overrules every lane change SUMO's driver wants: handed over after such a move, an agent stood
     at the end of its exit lane, or 60 s on a lane line it never left."""
-    net = exit_net(tmp_path)
-    options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
-    with SumoSim(options) as sim:
-        sim.add_route("out", ["A", "X"])
-        sim.add_vehicle("agent", "out", "behave_keeper", lane=2, pos=50.0, speed=25.0)
-        sim.step()
-        sim.take_control(["agent"])
+    with keeper_on(exit_net(tmp_path), ["A", "X"], lane=2, pos=50.0, speed=25.0) as (sim, _):
         sim.command_agents(["agent"], np.array([25.0]), np.array([1e-5]))
         sim.step()
         sim.hand_to_sumo(["agent"])
