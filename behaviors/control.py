@@ -460,7 +460,7 @@ class Fleet:
             sim.hand_to_sumo([r.ids[i] for i in np.flatnonzero(give)])
             self.handovers += int(give.sum())
         if take.any():
-            sim.take_back([r.ids[i] for i in np.flatnonzero(take)], self.car.max_lateral_speed)
+            sim.take_back([r.ids[i] for i in np.flatnonzero(take)])
             r.lateral_speed[take] = 0.0
             r.angle[take] = 0.0
         r.handed = (r.handed | give) & ~take

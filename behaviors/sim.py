@@ -296,7 +296,9 @@ class SumoSim:
 
     def hand_to_sumo(self, ids: Sequence[str]) -> None:
         """SUMO's own driver takes these agents (default speed and lane-change modes), with the
-        lateral comfort of SUMO's drivers (1 m/s^2, 1 m/s) instead of the agents' exact moves."""
+        lateral comfort of SUMO's drivers (1 m/s^2, 1 m/s) instead of the agents' exact moves.
+        SUMO holds those limits in a copy of the car's vType, `TYPE@id`, which FCD shows while
+        SUMO drives it."""
         v = self._sumo.vehicle
         for vid in ids:
             v.setSpeed(vid, -1.0)  # the agent's last commanded speed would otherwise hold for good
@@ -309,13 +311,14 @@ class SumoSim:
             v.setParameter(vid, "laneChangeModel.lcAccelLat", "1.0")
             v.setMaxSpeedLat(vid, 1.0)
 
-    def take_back(self, ids: Sequence[str], max_speed_lat: float) -> None:
-        """The policy drives again: checks off, and `changeSublane` exact again (see vtypes)."""
+    def take_back(self, ids: Sequence[str]) -> None:
+        """The policy drives again: its own vType back in place of SUMO's copy (so FCD tells who
+        drives), checks off, and `changeSublane` exact again (see vtypes)."""
         v = self._sumo.vehicle
-        self.take_control(ids)
         for vid in ids:
+            v.setType(vid, v.getTypeID(vid).removesuffix(f"@{vid}"))
             v.setParameter(vid, "laneChangeModel.lcAccelLat", "100")
-            v.setMaxSpeedLat(vid, max_speed_lat)
+        self.take_control(ids)
 
     def remove(self, ids: Sequence[str], reason: int = 0) -> None:
         v = self._sumo.vehicle

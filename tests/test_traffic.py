@@ -619,3 +619,26 @@ def test_sumo_changes_lanes_for_an_agent_whose_last_sideways_move_was_too_small_
             lanes.add(sim.read_lanes(["agent"])[0])
             sim.step()
         assert "X_0" in lanes
+
+
+def test_an_agent_given_back_has_its_own_vtype_and_exact_sideways_moves_again(tmp_path):
+    """While SUMO drives an agent, SUMO's copy of its type (`behave_keeper@agent`) holds the
+    handover's lateral limits and FCD shows it; kept after the hand-back, it read as SUMO driving
+    in every later row (a loss was blamed on SUMO that way)."""
+    with keeper_on(exit_net(tmp_path), ["A", "B"], lane=0, pos=50.0, speed=25.0) as (sim, fleet):
+        types_while_handed, back = set(), False
+        for _ in range(600):
+            fleet.sense(sim, sim.read_vehicles(), True)
+            if fleet.rows.handed[0]:
+                types_while_handed.add(sim._sumo.vehicle.getTypeID("agent"))
+            elif types_while_handed:
+                back = True
+                break
+            fleet.act(sim, np.array([[0.0, 0.25, 0.0]], np.float32))
+            sim.step()
+        assert back and types_while_handed == {"behave_keeper@agent"}
+        assert sim._sumo.vehicle.getTypeID("agent") == "behave_keeper"
+        before = float(sim.read_agents(["agent"]).lateral_pos[0])
+        sim.command_agents(["agent"], np.array([25.0]), np.array([0.3]))
+        sim.step()
+        assert float(sim.read_agents(["agent"]).lateral_pos[0]) - before == pytest.approx(0.3, abs=1e-6)
