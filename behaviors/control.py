@@ -31,8 +31,8 @@ HANDOVER_SECONDS = 10.0
 HANDBACK_MARGIN = 100.0
 """m: the policy gets the car back only when its lane leads on this much beyond that reach."""
 HANDBACK_INSIDE = 0.2
-"""m: ... and only when its body is this far inside its lane's lines: SUMO may carry a car it took
-over the line into a lane that then drops, and leave it on the carriageway's edge."""
+"""m: and only when its body is also this far inside its lane's lines: SUMO may carry a car it took
+over a line into a lane that then drops, which leaves it on the carriageway's edge."""
 LANE_END_MARGIN = 20.0
 SIGNAL_DISTANCE = 100.0
 SIGNAL_SECONDS = 5.0
