@@ -17,9 +17,9 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-BEHAVIOURS = {  # vType id -> (legend label, colour)
-    "behave_keeper": ("keeper (learned)", "tab:blue"),
-    "behave_overtaker": ("overtaker (learned)", "tab:orange"),
+GROUP_STYLES = {  # realism.py's vehicle group -> (legend label, colour)
+    "keepers": ("keeper (learned)", "tab:blue"),
+    "overtakers": ("overtaker (learned)", "tab:orange"),
 }
 SUMO_CAR = ("SUMO car", "tab:gray")
 SUMO_LANE_WIDTH = 3.2  # SUMO's default; FCD does not record lane widths
@@ -62,8 +62,9 @@ def plot_fcd(
     space, lateral = figure.subplots(2, 1, sharex=True, height_ratios=(3, 2))
     df = df.sort_values(["id", "time"], kind="stable")
     along = _along_column(df)
-    for _, trace in df.groupby("id", sort=False):
-        label, colour = BEHAVIOURS.get(str(trace["type"].iloc[0]), SUMO_CAR)
+    styles = trace_styles(df)
+    for vid, trace in df.groupby("id", sort=False):
+        label, colour = styles[vid]
         style: dict[str, Any] = {"color": colour, "label": label}  # Line2D keywords
         style.update(AGENT_STYLE if colour != SUMO_CAR[1] else SUMO_CAR_STYLE)
         space.plot(trace["time"], trace[along], **style)
@@ -72,6 +73,18 @@ def plot_fcd(
     lanes = (int(index.min()), int(index.max())) if len(index) else (0, 0)
     _decorate(space, lateral, along, title, lanes)
     _save_png(figure, Path(out))
+
+
+def trace_styles(df: pd.DataFrame) -> dict[str, tuple[str, str]]:
+    """(legend label, colour) of each vehicle, grouped as the realism report groups it: by the
+    vType of its last record, SUMO's per-vehicle copies `TYPE@id` counting as TYPE. A scenario's
+    car that `populate --share` made an agent starts with the scenario's type."""
+    from behaviors.realism import group_names  # pandas-heavy: only once a plot is drawn
+
+    last_type = df.groupby("id", sort=False)["type"].last()
+    groups = group_names(last_type.index.to_series(), last_type, "type")
+    pairs = zip(last_type.index, groups, strict=True)
+    return {vid: GROUP_STYLES.get(group, SUMO_CAR) for vid, group in pairs}
 
 
 def _along_column(df: pd.DataFrame) -> str:

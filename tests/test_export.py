@@ -19,7 +19,7 @@ from behaviors.export import (
     read_fcd,
     validate_fcd_xml,
 )
-from behaviors.plot import ALONG_LABELS, _along_column, _lane_widths, _lateral_lanes, plot_fcd
+from behaviors.plot import ALONG_LABELS, _along_column, _lane_widths, _lateral_lanes, plot_fcd, trace_styles
 from behaviors.sumo_home import sumo_binary
 
 UTM32 = "+proj=utm +zone=32 +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
@@ -226,3 +226,20 @@ def test_plot_axis_is_road_position_or_odometer() -> None:
     two = pd.concat([trace([500.0, 530.0]), trace([0.0, 30.0]).assign(id="b")])
     assert _along_column(two) == "distance"
     assert set(ALONG_LABELS.values()) >= {"road position [m]", "distance driven since insertion [m]"}
+
+
+def test_plot_colours_a_vehicle_by_its_last_type_as_the_report_groups_it() -> None:
+    """A car `--share` made an agent starts with the scenario's type, and SUMO's rows for an agent
+    it drives carry its copy `behave_keeper@<id>`: drawn by the first record's exact type, every
+    agent of a `--sumocfg` run was a grey SUMO car in the time-space picture."""
+    df = pd.DataFrame(
+        {
+            "time": [0.0, 0.2, 0.0, 0.2, 0.0],
+            "id": ["shared", "shared", "handed", "handed", "sumo"],
+            "type": ["car", "behave_keeper", "behave_overtaker", "behave_overtaker@handed", "car"],
+        }
+    )
+    styles = trace_styles(df)
+    assert styles["shared"][0] == "keeper (learned)"
+    assert styles["handed"][0] == "overtaker (learned)"
+    assert styles["sumo"][0] == "SUMO car"
