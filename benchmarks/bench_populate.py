@@ -1,6 +1,8 @@
 """Per-step cost of `behave populate` against SUMO alone with the same number of vehicles.
 
-Every row runs in one process, one after the other (libsumo restarts after close):
+Each round runs three simulations, each in a fresh process, stepped in turn one step at a time
+(the machine's speed drifts within minutes: runs timed one after the other measured the drift as
+much as the code):
 1. populate: `Population(config)` with learned agents (half overtakers, half keepers with the
    multi-behaviour policy; keepers only with the lane-keeping one) among `behave_background` cars,
    FCD on (the real use); whole `Population.step()` timed, split into the population timer's
@@ -9,9 +11,8 @@ Every row runs in one process, one after the other (libsumo restarts after close
    and driven by SUMO; only the SUMO step (the "sumo" phase) is timed;
 3. SUMO alone without FCD: as 2 without `--fcd-output`, so the FCD column is what writing FCD
    costs SUMO per step for that many vehicles.
-Each run starts in a fresh process and warms up (all vehicles inserted) before timing. The
-network is a long straight 3-lane highway built into a temp dir with the project's own builder
-(the bundled one holds ~600 cars).
+Each run warms up (all vehicles inserted) before timing. The network is a long straight 3-lane
+highway built into a temp dir with the project's own builder (the bundled one holds ~600 cars).
 
 Usage: python benchmarks/bench_populate.py [--rows 100:100,1000:200] [--steps 200] [--seed 0]
                                            [--rounds 3] [--length 30000] [--policy CKPT] [--csv PATH]
@@ -28,8 +29,8 @@ import pstats
 import tempfile
 import time
 from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from multiprocessing.connection import Connection
 from pathlib import Path
 
 import torch
@@ -72,6 +73,7 @@ class Result:
     alone_on_road: int = 0
     no_fcd_s: float = 0.0
     no_fcd_steps: int = 0
+    round_ratios: list[float] = field(default_factory=list)  # ratio of each round's lockstep runs
 
     def per_step_ms(self, seconds: float, steps: int | None = None) -> float:
         return 1000.0 * seconds / max(self.steps if steps is None else steps, 1)
@@ -141,10 +143,7 @@ def run_population(
     """Warm up, then time `steps` whole steps (FCD to `fcd`, or none); steps, seconds, phases, counters."""
     population.start(None if fcd is None else partial_path(fcd))
     try:
-        for _ in range(WARMUP_STEPS):
-            population.step()
-        population.timer.reset()
-        before = dict(population.summary.__dict__)
+        before = warm_up(population)
         total = 0.0
         if profiler is not None:
             profiler.enable()
@@ -154,16 +153,27 @@ def run_population(
             total += time.perf_counter() - start
         if profiler is not None:
             profiler.disable()
-        s = population.summary
-        counts = {
-            "collisions": s.collisions - before["collisions"],
-            "off_tracks": s.off_tracks - before["off_tracks"],
-            "retries": s.insert_retries - before["insert_retries"],
-            "on_road": len(population.sim.vehicle_ids()) if population.sim else 0,
-        }
-        return steps, total, dict(population.timer.seconds), counts
+        return steps, total, dict(population.timer.seconds), counters(population, before)
     finally:
         population.close()
+
+
+def warm_up(population: Population) -> dict[str, int]:
+    """Steps until every vehicle is in, then a clean timer; the summary's counts at that point."""
+    for _ in range(WARMUP_STEPS):
+        population.step()
+    population.timer.reset()
+    return dict(population.summary.__dict__)
+
+
+def counters(population: Population, before: dict[str, int]) -> dict[str, int]:
+    s = population.summary
+    return {
+        "collisions": s.collisions - before["collisions"],
+        "off_tracks": s.off_tracks - before["off_tracks"],
+        "retries": s.insert_retries - before["insert_retries"],
+        "on_road": len(population.sim.vehicle_ids()) if population.sim else 0,
+    }
 
 
 def config_for(
@@ -189,32 +199,80 @@ def sumo_alone_config(config: PopulateConfig) -> PopulateConfig:
                    + config.background)  # fmt: skip
 
 
-def run_fresh(config: PopulateConfig, fcd: Path, steps: int, with_fcd: bool = True) -> RunOutput:
-    """One timed run in a process of its own.
+def _stepper(config: PopulateConfig, fcd: Path | None, conn: Connection) -> None:
+    """A child process: one run, warmed up, then one timed step per "step" message from the
+    parent; on "stop" it sends back the run's phases and counters."""
+    torch.set_num_threads(POLICY_THREADS)  # as `behave populate` does
+    population = Population(config)
+    population.start(None if fcd is None else partial_path(fcd))
+    try:
+        before = warm_up(population)
+        conn.send("ready")
+        total = 0.0
+        while conn.recv() == "step":
+            start = time.perf_counter()
+            population.step()
+            total += time.perf_counter() - start
+            conn.send(None)
+        conn.send((total, dict(population.timer.seconds), counters(population, before)))
+    finally:
+        population.close()
 
-    SUMO's step time depends on what the process ran before (its heap after earlier libsumo
-    runs): SUMO alone measured 7% faster after a 100-agent row than as the process's first run.
-    A fresh process per run gives populate and SUMO alone the same start.
+
+def run_in_lockstep(runs: list[tuple[PopulateConfig, Path | None]], steps: int) -> list[RunOutput]:
+    """Each run in a process of its own, all stepped in turn, one step each.
+
+    This machine's speed drifts by tens of percent within minutes, so runs timed one after
+    the other measure the drift as much as the code; stepped in turn, every run meets the
+    same machine within a fraction of a second (only one steps at a time). A fresh process per
+    run also gives each the same start: SUMO's step time depends on what its process ran before.
     """
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=1, mp_context=context) as pool:
-        return pool.submit(_run_in_child, config, fcd, steps, with_fcd).result()
+    children = []
+    try:
+        for config, fcd in runs:
+            ours, theirs = context.Pipe()
+            process = context.Process(target=_stepper, args=(config, fcd, theirs), daemon=True)
+            process.start()
+            children.append((process, ours))
+        for _, conn in children:
+            _expect(conn, "ready")
+        for _ in range(steps):
+            for _, conn in children:
+                conn.send("step")
+                conn.recv()
+        outputs = []
+        for _, conn in children:
+            conn.send("stop")
+            total, phases, counts = conn.recv()
+            outputs.append((steps, total, phases, counts))
+        return outputs
+    except EOFError:
+        raise SystemExit("bench_populate: a benchmark run stopped (its error is printed above)") from None
+    finally:
+        for process, _ in children:
+            process.join(timeout=60)
+            if process.is_alive():
+                process.kill()
 
 
-def _run_in_child(config: PopulateConfig, fcd: Path, steps: int, with_fcd: bool) -> RunOutput:
-    torch.set_num_threads(POLICY_THREADS)  # as `behave populate` does
-    return run_population(Population(config), fcd if with_fcd else None, steps)
+def _expect(conn: Connection, message: str) -> None:
+    got = conn.recv()
+    if got != message:
+        raise RuntimeError(f"benchmark child sent {got!r}, expected {message!r}")
 
 
 def run_row(
     row: Row, net: Path, tmp: Path, steps: int, seed: int, rounds: int, policy: Path | None
 ) -> Result:
-    fcd = tmp / "fcd.xml"
-    config = config_for(row, net, fcd, steps, seed, policy)
-    alone = sumo_alone_config(config)
+    config = config_for(row, net, tmp / "populate.fcd.xml", steps, seed, policy)
+    alone = sumo_alone_config(replace(config, fcd=tmp / "alone.fcd.xml"))
     result = Result(row, config.policy.name, config.overtakers, config.keepers, phase_s={})
     for _ in range(rounds):
-        done, total, phases, counts = run_fresh(config, fcd, steps)
+        ours, by_sumo, no_fcd = run_in_lockstep(
+            [(config, config.fcd), (alone, alone.fcd), (alone, None)], steps
+        )
+        done, total, phases, counts = ours
         result.steps += done
         result.total_s += total
         for name, seconds in phases.items():
@@ -223,11 +281,12 @@ def run_row(
         result.off_tracks += counts["off_tracks"]
         result.retries += counts["retries"]
         result.on_road = counts["on_road"] if result.on_road == 0 else min(result.on_road, counts["on_road"])
-        done, _, phases, counts = run_fresh(alone, fcd, steps)
+        done, _, phases, counts = by_sumo
         result.alone_s += phases.get("sumo", 0.0)
         result.alone_steps += done
         result.alone_on_road = counts["on_road"]
-        done, _, phases, _ = run_fresh(alone, fcd, steps, with_fcd=False)
+        result.round_ratios.append((total / ours[0]) / (phases.get("sumo", 0.0) / done))
+        done, _, phases, _ = no_fcd
         result.no_fcd_s += phases.get("sumo", 0.0)
         result.no_fcd_steps += done
     return result
@@ -258,6 +317,7 @@ COLUMNS = (
     "other",
     "SUMO alone",
     "ratio",
+    "per round",
     "FCD",
     "collisions",
     "off-tracks",
@@ -279,6 +339,7 @@ def row_of(r: Result, for_csv: bool = False) -> list[str]:
         *(f"{r.phase_ms(p):.2f}" for p in (*PHASES, "other")),
         f"{r.alone_ms:.2f}",
         f"{r.ratio:.2f}",
+        f"{min(r.round_ratios):.2f}-{max(r.round_ratios):.2f}",
         f"{r.fcd_ms:.2f}",
         str(r.collisions),
         str(r.off_tracks),
@@ -295,7 +356,8 @@ def print_results(results: list[Result], args: argparse.Namespace, console: Cons
     print_table(console, title, COLUMNS, (row_of(r) for r in results))
     console.print(
         "RTF = real-time factor; ot/kp = overtakers/keepers; SUMO alone = ms/step of the SUMO step with "
-        "the same vehicle count, all behave_background, FCD on; ratio = ms/step / SUMO alone;\n"
+        "the same vehicle count, all behave_background, FCD on; ratio = ms/step / SUMO alone\n"
+        "(per round: the lowest and highest round); "
         "FCD = SUMO alone with FCD minus without (ms/step); collisions, off-tracks and insert retries of "
         "the agents during the timed steps"
     )
