@@ -144,6 +144,20 @@ class RoadGeometry:
         return first, np.append(first[1:], len(self.axis_s)) - 1
 
     @functools.cached_property
+    def lane_shape_length(self) -> np.ndarray:
+        """[L] length of each lane's shape (SUMO's lane length times `lane_length_scale`)."""
+        first, last = self._lane_vertices
+        return self.axis_s[last] - self.axis_s[first]
+
+    @functools.cached_property
+    def lane_names(self) -> list[str]:
+        """[L] SUMO's id of each lane row (`lane_index` inverted)."""
+        names = [""] * len(self.lane_index)
+        for lane, row in self.lane_index.items():
+            names[row] = lane
+        return names
+
+    @functools.cached_property
     def lane_segments(self) -> np.ndarray:
         """[L] straight segments of each lane's shape (1 for a straight lane)."""
         first, last = self._lane_vertices

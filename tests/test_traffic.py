@@ -371,31 +371,35 @@ def test_roads_with_queues_have_a_queue_crawling_in_the_slow_lane_while_the_othe
 
 
 @pytest.mark.parametrize("name", ["motorway3_lefthand", "carriageway2"])
-def test_lane_places_derived_from_positions_are_sumos_own(tmp_path, monkeypatch, name):
-    """Agents still in last step's lane get lane position and lateral offset by projection, not
-    from SUMO: on a curved left-hand net and on 3.2 m lanes they equal SUMO's to the millimetre."""
+def test_lanes_and_lane_places_derived_from_positions_are_sumos_own(tmp_path, monkeypatch, name):
+    """Agents still well inside last step's lane get their lane, lane position and lateral offset
+    by projection, not from SUMO: on a curved left-hand net and on 3.2 m lanes the lane is SUMO's
+    in every step and the places equal SUMO's to the millimetre."""
     derive = Fleet._read_lanes
     worst, asked = [0.0, 0.0], []
 
     def checked(self, sim, vehicles, rows):
-        calls = []
-        read = sim.read_lane_places
-        monkeypatch.setattr(sim, "read_lane_places", lambda ids: calls.append(len(ids)) or read(ids))
+        lanes, places = [], []
+        read_lanes, read_places = sim.read_lanes, sim.read_lane_places
+        monkeypatch.setattr(sim, "read_lanes", lambda ids: lanes.append(len(ids)) or read_lanes(ids))
+        monkeypatch.setattr(sim, "read_lane_places", lambda ids: places.append(len(ids)) or read_places(ids))
         readings, lane_rows, entered = derive(self, sim, vehicles, rows)
-        monkeypatch.setattr(sim, "read_lane_places", read)
+        monkeypatch.setattr(sim, "read_lanes", read_lanes)
+        monkeypatch.setattr(sim, "read_lane_places", read_places)
         truth = sim.read_agents(self.rows.ids)
         assert readings.lane_id == truth.lane_id
         worst[0] = max(worst[0], float(np.abs(truth.lane_pos - readings.lane_pos).max(initial=0.0)))
         worst[1] = max(worst[1], float(np.abs(truth.lateral_pos - readings.lateral_pos).max(initial=0.0)))
-        asked.append((sum(calls), len(rows)))
+        asked.append((sum(lanes), sum(places), len(rows)))
         return readings, lane_rows, entered
 
     monkeypatch.setattr(Fleet, "_read_lanes", checked)
     net = build_osm_like(name, tmp_path / name)
     populate(config_from(net.sumocfg, share=0.5, seed=1, duration=40.0, fcd=tmp_path / "f.xml"))
     assert worst[0] < 0.01 and worst[1] < 0.001, worst
-    read, agent_steps = np.sum(asked, axis=0)
-    assert agent_steps > 1000 and read < 0.1 * agent_steps  # SUMO asked for a few, not all
+    lanes_read, places_read, agent_steps = np.sum(asked, axis=0)
+    assert agent_steps > 1000  # SUMO asked for a few, not all:
+    assert lanes_read < 0.1 * agent_steps and places_read < 0.1 * agent_steps, (lanes_read, places_read)
 
 
 def exit_net(tmp: Path) -> Path:
