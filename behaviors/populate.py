@@ -476,8 +476,9 @@ class Population:
         gone = rows < 0
         if len(fleet):
             self._observe_agents(~gone, vehicles.speed[rows[~gone]])
-        self.log.end(end_reasons(crashed, off_track, gone, self._arrived(gone, arrived)), now)
         leaving = crashed | off_track | gone
+        if leaving.any():  # most steps nobody leaves: no per-agent reasons to build
+            self.log.end(end_reasons(crashed, off_track, gone, self._arrived(gone, arrived)), now)
         self.summary.collisions += int(crashed.sum())
         self.summary.off_tracks += int((off_track & ~crashed).sum())
         self.summary.agent_steps += len(fleet)
