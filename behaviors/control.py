@@ -179,6 +179,7 @@ class Fleet:
         self.rows = AgentRows()
         self.handovers = 0  # agents handed to SUMO's driver (traffic driver: exits, lane drops)
         self._located: tuple[dict[str, int], list[str], np.ndarray] | None = None
+        self._one_lane_at: dict[tuple[str, int], float] = {}  # (route, index) -> `_one_lane_road_at`
 
     def __len__(self) -> int:
         return len(self.rows.ids)
@@ -420,7 +421,10 @@ class Fleet:
             k = int(index)
             r.lane_ends[i] = [ahead.get(f"{edge}_{j}", 0.0) for j in (k, k + 1, k - 1)]
             r.best_end[i] = max(ahead.values(), default=0.0)
-            r.one_lane_at[i] = self._one_lane_road_at(edge, sim.route_ahead(r.ids[i]))
+            place = sim.route_place(r.ids[i])
+            if place not in self._one_lane_at:  # agents on one route share it (a route can be long)
+                self._one_lane_at[place] = self._one_lane_road_at(edge, sim.route_ahead(r.ids[i]))
+            r.one_lane_at[i] = self._one_lane_at[place]
 
     def _one_lane_road_at(self, edge: str, route_ahead: list[str]) -> float:
         """Metres from the start of `edge` to the first road of the route ahead with fewer than two car

@@ -163,12 +163,15 @@ class RoadGeometry:
         first, last = self._lane_vertices
         return np.maximum(last - first, 1)
 
-    def lane_pose(self, lane_rows: np.ndarray, shape_pos: np.ndarray) -> LanePose:
+    def lane_pose(
+        self, lane_rows: np.ndarray, shape_pos: np.ndarray, with_curvature: bool = True
+    ) -> LanePose:
         """Where a lane's own centre line is at `shape_pos` metres along its shape, clamped to the lane.
 
         SUMO places cars on the lane polyline itself, whose direction jumps at each vertex;
         `road_axis` smooths those jumps (a heading for the paper's driver), which on a coarse
-        polyline is several degrees off the segment a car is on.
+        polyline is several degrees off the segment a car is on. `with_curvature=False` leaves the
+        curvature out (NaN), a third of the work, for callers that only need the point and angle.
         """
         first, last = self._lane_vertices
         lo, hi = first[lane_rows], last[lane_rows]
@@ -181,15 +184,23 @@ class RoadGeometry:
         span = np.hypot(d[:, 0], d[:, 1])
         t = np.clip((s - self.axis_s[i]) / np.maximum(span, 1e-9), 0.0, 1.0)
         angle = np.arctan2(d[:, 1], d[:, 0])
-        # the turn between this segment and its neighbour, over the distance between their middles
+        curvature = (
+            self._segment_curvature(lo, hi, i, angle, span) if with_curvature else np.full(len(i), np.nan)
+        )
+        start = self.axis_s[i] - self.axis_s[lo]
+        return LanePose(a + t[:, None] * d, angle, curvature, pos, length, start, start + span)
+
+    def _segment_curvature(
+        self, lo: np.ndarray, hi: np.ndarray, i: np.ndarray, angle: np.ndarray, span: np.ndarray
+    ) -> np.ndarray:
+        """The turn between segment `i` (direction `angle`, length `span`) and its neighbour on the
+        lane (the one before, else the one after), over the distance between their middles."""
         j = np.where(i > lo, i - 1, np.minimum(i + 1, np.maximum(hi - 1, lo)))
         e = self.axis_xy[np.minimum(j + 1, hi)] - self.axis_xy[j]
         other = np.arctan2(e[:, 1], e[:, 0])
         turn = np.where(j < i, wrap_angle(angle - other), wrap_angle(other - angle))
         middles = (span + np.hypot(e[:, 0], e[:, 1])) / 2
-        curvature = np.where(j != i, turn / np.maximum(middles, 1e-9), 0.0)
-        start = self.axis_s[i] - self.axis_s[lo]
-        return LanePose(a + t[:, None] * d, angle, curvature, pos, length, start, start + span)
+        return np.where(j != i, turn / np.maximum(middles, 1e-9), 0.0)
 
     def candidates(self, points: np.ndarray, heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(point row, segment id) pairs: the border segments a track ray from each pose may hit.

@@ -153,9 +153,8 @@ def lane_coordinates(
     others (beyond a vertex, off the lane's ends) are projected once more, unless the lane is one
     straight segment, which goes on straight.
     """
-    car = geometry.lane_pose(lane_row, shape_pos)
-    target = front[pairs] + offset
-    r = target - car.point[pairs]
+    car = geometry.lane_pose(lane_row, shape_pos, with_curvature=False)
+    r = offset + (front - car.point)[pairs]  # each target from its car's point on the lane
     cos, sin = np.cos(car.angle)[pairs], np.sin(car.angle)[pairs]
     along = r[:, 0] * cos + r[:, 1] * sin
     across = r[:, 1] * cos - r[:, 0] * sin
@@ -164,7 +163,8 @@ def lane_coordinates(
     beyond = bends & ((at < car.segment_start[pairs]) | (at > car.segment_end[pairs]))
     if beyond.any():
         k = np.flatnonzero(beyond)
-        along[k], across[k] = _project(geometry, lane_row[pairs[k]], shape_pos[pairs[k]], target[k], along[k])
+        target = front[pairs[k]] + offset[k]
+        along[k], across[k] = _project(geometry, lane_row[pairs[k]], shape_pos[pairs[k]], target, along[k])
     return along, across
 
 

@@ -272,6 +272,12 @@ class SumoSim:
         v = self._sumo.vehicle
         return list(v.getRoute(vid)[v.getRouteIndex(vid) + 1 :])
 
+    def route_place(self, vid: str) -> tuple[str, int]:
+        """`vid`'s route id and its index in it: SUMO never changes a route's edges (a reroute
+        makes a new route), so the pair names what lies ahead."""
+        v = self._sumo.vehicle
+        return v.getRouteID(vid), v.getRouteIndex(vid)
+
     def vtype_size(self, vtype: str) -> tuple[float, float]:
         """A vehicle type's length and minGap (the gap it keeps standing), metres."""
         t = self._sumo.vehicletype
