@@ -185,6 +185,18 @@ def test_a_car_astride_two_lanes_blocks_both_and_missing_lanes_are_walls():
     assert obs[0, TRAFFIC_SLICES["lanes_slow_side"]][0] == 0.0
 
 
+def test_a_lane_pose_without_curvature_is_the_same_pose_with_the_curvature_left_out():
+    kink = np.radians(12.5)
+    road = lanes_along([(0.0, 0.0), (250.0, 0.0), (250.0 + 250.0 * np.cos(kink), 250.0 * np.sin(kink))])
+    rows = np.array([road.lane_index[f"e_{k}"] for k in (0, 1, 2, 1)])
+    at = np.array([10.0, 249.0, 251.0, 600.0])  # before, at and beyond the vertex, past the end
+    full, light = road.lane_pose(rows, at), road.lane_pose(rows, at, with_curvature=False)
+    for name in ("point", "angle", "pos", "length", "segment_start", "segment_end"):
+        np.testing.assert_array_equal(getattr(light, name), getattr(full, name))
+    assert np.isnan(light.curvature).all()  # left out, not a silent 0
+    assert np.abs(full.curvature[1:]).min() > 1e-4  # the bend is there in the full pose
+
+
 def test_a_car_in_the_own_lane_beyond_a_bend_of_the_polyline_is_the_leader_not_a_neighbour():
     # the bundled motorway's lanes turn 12.5 degrees at a vertex, 250 m apart: a smoothed road
     # heading put a car 40 m ahead in the own lane 2.4 m to the side, and the agent saw no leader
