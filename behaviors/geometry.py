@@ -175,7 +175,7 @@ class RoadGeometry:
         """
         first, last = self._lane_vertices
         lo, hi = first[lane_rows], last[lane_rows]
-        length = self.axis_s[hi] - self.axis_s[lo]
+        length = self.lane_shape_length[lane_rows]
         pos = np.clip(shape_pos, 0.0, length)
         s = self.axis_s[lo] + pos
         i = np.clip(np.searchsorted(self.axis_s, s, side="right") - 1, lo, np.maximum(hi - 1, lo))
