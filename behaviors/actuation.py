@@ -115,25 +115,141 @@ def actuate(
 
 
 @dataclass(frozen=True)
-class LaneDriving:
-    """Lateral limits of the `traffic` driver model: steer sets a lateral speed, not a heading.
+class CarFollowing:
+    """The car-following law the traffic driver's longitudinal action adjusts: the Intelligent
+    Driver Model (Treiber, Hennecke and Helbing 2000) with a human's time headway and comfort.
 
-    SUMO's sublane model has no heading: `changeSublane(0)` follows the lane, so in the
-    traffic model steer 0 holds the car's place in its lane (on curves too) and steer +-1
-    asks for `max_lateral_speed` towards the fast/slow side, reached at most at
-    `max_lateral_accel` (a firm lane change; SUMO's own drivers default to 1 m/s^2 with
-    `lcAccelLat`). The paper's heading model (`actuate`) stays for the paper's policies.
+    A policy that only learns an acceleration from reward follows at 3-4 s and pulls away from a
+    stop at 0.5 m/s^2, so the traffic it makes jams at a third of a motorway's capacity; with this
+    law under it the policy starts from human following and learns where to deviate from it.
     """
 
-    max_lateral_speed: float = 1.5  # m/s: 3.5 m lane in about 3 s at full steer
-    max_lateral_accel: float = 2.0  # m/s^2
+    time_headway: float = 1.2  # s: desired gap at speed (drivers: median about 1.4 s, fined below 0.9)
+    min_gap: float = 2.0  # m: bumper to bumper when standing
+    accel: float = 2.0  # m/s^2: pulling away (SUMO's passenger cars: 2.6)
+    comfortable_decel: float = 2.0  # m/s^2
+    exponent: float = 4.0
+
+
+def following_accel(
+    speed: np.ndarray,
+    desired_speed: np.ndarray,
+    gap: np.ndarray,
+    leader_speed: np.ndarray,
+    law: CarFollowing,
+) -> np.ndarray:
+    """[N] IDM acceleration; `gap` is bumper to bumper (+inf with no leader, then `leader_speed` is
+    ignored)."""
+    free = 1.0 - (speed / np.maximum(desired_speed, 0.1)) ** law.exponent
+    has_leader = np.isfinite(gap)
+    closing = speed - np.where(has_leader, np.nan_to_num(leader_speed), speed)
+    wanted = law.min_gap + np.maximum(
+        speed * law.time_headway + speed * closing / (2.0 * np.sqrt(law.accel * law.comfortable_decel)), 0.0
+    )
+    interaction = np.where(has_leader, (wanted / np.maximum(np.where(has_leader, gap, 1.0), 0.1)) ** 2, 0.0)
+    return law.accel * (free - interaction)
+
+
+@dataclass(frozen=True)
+class LaneDriving:
+    """How the traffic driver executes what its policy chooses (the paper's heading model,
+    `actuate`, stays for the paper's policies).
+
+    Steer chooses where in the road to be: within `change_threshold` of 0 the centre of the
+    own lane, beyond it the centre of the neighbour lane on that side. A lane change, once
+    begun, is a commitment: it goes on until the car is in the new lane, and ends early only
+    when the policy steers the other way past the threshold or the shield blocks it. The car
+    moves towards its target at a lateral speed that rises and falls within human comfort
+    (a 3.5 m change takes about 4.6 s with a peak lateral acceleration of 0.8 m/s^2, where
+    recorded drivers take 5-6 s at 0.5-1 m/s^2), so steer 0 centres the car and holds it there.
+
+    Accel and brake adjust the car-following law: accel 0.5 and brake 0 drive as `following`
+    says, accel 1 (0) adds (takes) `accel_span`, brake takes up to the car's max_brake.
+    """
+
+    change_threshold: float = 0.5
+    max_lateral_speed: float = 1.2  # m/s
+    max_lateral_accel: float = 0.8  # m/s^2
+    max_lateral_jerk: float = 2.5  # m/s^3
+    arrival_decel: float = 0.3  # m/s^2: the lateral speed falls so as to arrive at the target gently
+    response_time: float = 0.4  # s: how fast the lateral speed follows that profile
     max_slip: float = 0.25  # lateral speed at most this fraction of the forward speed
+    arrived: float = 0.35  # lane widths past the new lane's centre line: the change is over
+    accel_span: float = 1.5  # m/s^2
+    following: CarFollowing = CarFollowing()
+
+
+def lane_intent(
+    steer: np.ndarray,
+    changing: np.ndarray,
+    lane_offset: np.ndarray,
+    lane_width: np.ndarray,
+    lanes_fast: np.ndarray,
+    lanes_slow: np.ndarray,
+    lateral: LaneDriving,
+) -> np.ndarray:
+    """[N] int: the lane each agent heads for, relative to its own (+1 the fast side, -1 the slow
+    side, 0 its own), given `changing`, the same at the last step.
+
+    A change is over once the car's centre is `arrived` lane widths on the far side of its new
+    lane's centre line, which is where SUMO puts it right after it crossed the line (its offset
+    jumps from +w/2 to -w/2): no lane index is needed, so this holds across edges too.
+    """
+    wish = np.where(steer > lateral.change_threshold, 1, np.where(steer < -lateral.change_threshold, -1, 0))
+    crossed = changing * lane_offset < -lateral.arrived * lane_width
+    vanished = np.where(changing > 0, lanes_fast == 0, np.where(changing < 0, lanes_slow == 0, False))
+    going = np.where(crossed | vanished | (wish == -changing), 0, changing)
+    room = np.where(wish > 0, lanes_fast > 0, lanes_slow > 0)
+    return np.where((going == 0) & (wish != 0) & room, wish, going)
+
+
+def lateral_profile(
+    error: np.ndarray,
+    lateral_speed: np.ndarray,
+    lateral_accel: np.ndarray,
+    speed: np.ndarray,
+    dt: float,
+    lateral: LaneDriving,
+) -> tuple[np.ndarray, np.ndarray]:
+    """New lateral speed and acceleration [N] towards a target `error` metres away (+ = fast side):
+    the speed from which the target is reached decelerating at `arrival_decel`, capped at
+    `max_lateral_speed` and at `max_slip` of the forward speed (a standing car does not slide),
+    followed with acceleration and jerk limits."""
+    reach = np.minimum(lateral.max_lateral_speed, lateral.max_slip * speed)
+    profile = np.sign(error) * np.minimum(reach, np.sqrt(2.0 * lateral.arrival_decel * np.abs(error)))
+    wanted = np.clip(
+        (profile - lateral_speed) / lateral.response_time,
+        -lateral.max_lateral_accel,
+        lateral.max_lateral_accel,
+    )
+    jerk = lateral.max_lateral_jerk * dt
+    accel = lateral_accel + np.clip(wanted - lateral_accel, -jerk, jerk)
+    new_speed = np.clip(lateral_speed + accel * dt, -reach, reach)
+    return new_speed, (new_speed - lateral_speed) / dt
+
+
+@dataclass(frozen=True)
+class LaneCommand:
+    """The traffic driver's actuation and the per-agent state it carries to the next step."""
+
+    actuation: Actuation
+    changing: np.ndarray  # [N] int, see `lane_intent`
+    lateral_accel: np.ndarray  # [N] m/s^2, + = fast side
 
 
 def actuate_lanes(
     actions: np.ndarray,
     speed: np.ndarray,
+    desired_speed: np.ndarray,
+    lead_gap: np.ndarray,
+    lead_speed: np.ndarray,
     lateral_speed: np.ndarray,
+    lateral_accel: np.ndarray,
+    changing: np.ndarray,
+    lane_offset: np.ndarray,
+    lane_width: np.ndarray,
+    lanes_fast: np.ndarray,
+    lanes_slow: np.ndarray,
     offset: np.ndarray,
     half_width: np.ndarray,
     speed_limit: np.ndarray,
@@ -142,19 +258,39 @@ def actuate_lanes(
     lateral: LaneDriving,
     side_limit: np.ndarray | None = None,
     speed_cap: np.ndarray | None = None,
-) -> Actuation:
-    """One control step of the traffic model for all agents.
+) -> LaneCommand:
+    """One control step of the traffic driver for all agents.
 
     Everything sideways is signed as SUMO's lane indices and `changeSublane` are: + towards
     the fast side (the left in keep-right nets, the right in left-hand ones, which SUMO
-    mirrors). `angle` in the result is atan(lateral speed / speed).
+    mirrors); `offset` and `half_width` are the carriageway's. `lead_gap`/`lead_speed` [N, 3]:
+    the leaders in the own, fast-side and slow-side lane (gap +inf where none). `angle` in
+    the result is atan(lateral speed / speed). A car that heads for a neighbour lane also
+    follows that lane's leader, as a driver who moves over does.
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
-    new_speed, speed_cut = longitudinal(actions, speed, speed_limit, dt, car, speed_cap)
-    reach = np.minimum(lateral.max_lateral_speed, lateral.max_slip * new_speed)
-    wanted = steer * reach
-    step = lateral.max_lateral_accel * dt
-    new_lateral = np.clip(lateral_speed + np.clip(wanted - lateral_speed, -step, step), -reach, reach)
+    heading = lane_intent(steer, changing, lane_offset, lane_width, lanes_fast, lanes_slow, lateral)
+    rows = np.arange(len(steer))
+    target_column = np.where(heading > 0, 1, np.where(heading < 0, 2, 0))
+    follow = following_accel(speed, desired_speed, lead_gap[:, 0], lead_speed[:, 0], lateral.following)
+    into = following_accel(
+        speed,
+        desired_speed,
+        lead_gap[rows, target_column],
+        lead_speed[rows, target_column],
+        lateral.following,
+    )
+    accel = np.clip(actions[:, 1], 0.0, 1.0)
+    brake = np.clip(actions[:, 2], 0.0, 1.0)
+    command = np.minimum(follow, into) + 2.0 * lateral.accel_span * (accel - 0.5) - car.max_brake * brake
+    command = np.clip(command, -car.max_brake, car.max_accel)
+    new_speed = np.clip(speed + command * dt, 0.0, speed_limit)
+    speed_cut = np.zeros(len(new_speed), bool)
+    if speed_cap is not None:
+        speed_cut = new_speed > speed_cap
+        new_speed = np.where(speed_cut, np.maximum(speed_cap, 0.0), new_speed)
+    error = heading * lane_width - lane_offset
+    new_lateral, new_accel = lateral_profile(error, lateral_speed, lateral_accel, new_speed, dt, lateral)
     move = new_lateral * dt
     side_cut = np.zeros(len(move), bool)
     if side_limit is not None:
@@ -162,6 +298,9 @@ def actuate_lanes(
         side_cut = limited != move
         move = limited
         new_lateral = np.where(side_cut, move / dt, new_lateral)
+        new_accel = np.where(side_cut, 0.0, new_accel)
+        heading = np.where(side_cut, 0, heading)  # a blocked change is given up: back to the own lane
     move, off_track = clamp_to_road(offset, move, half_width, car)
     angle = np.arctan2(new_lateral, np.maximum(new_speed, 0.1))
-    return Actuation(new_speed, angle, new_speed, move, off_track, side_cut, speed_cut, new_lateral)
+    result = Actuation(new_speed, angle, new_speed, move, off_track, side_cut, speed_cut, new_lateral)
+    return LaneCommand(result, heading, new_accel)

@@ -114,6 +114,8 @@ class AgentRows:
     # traffic driver only (see lanes.py): set by `add` and `sense`
     desired_fraction: np.ndarray = field(default_factory=lambda: np.zeros(0))  # of the local speed limit
     lateral_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
+    lateral_accel: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
+    changing: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # see actuation.lane_intent
     lane_number: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # -1 = not sensed yet
     lane_count: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     lane_changed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # at the last sensing
@@ -126,6 +128,7 @@ class AgentRows:
     lane_row: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # at the last read, -1 = none
     shape_pos: np.ndarray = field(default_factory=lambda: np.zeros(0))  # along that lane's shape, metres
     around: Surroundings | None = None
+    lanes: LaneAgents | None = None  # the traffic driver's agents in their lanes, at the last sensing
 
     def take(self, mask: np.ndarray) -> AgentRows:
         """The rows where `mask` is True, of every field."""
@@ -134,9 +137,9 @@ class AgentRows:
 
 def take_rows(value, mask: np.ndarray):
     """`value`'s rows where `mask` is True; None stays None, a RoadFrame is taken field by field."""
-    if value is None:
-        return None
-    if isinstance(value, RoadFrame | Surroundings):
+    if value is None or isinstance(value, float):
+        return value
+    if isinstance(value, RoadFrame | Surroundings | LaneAgents):
         return type(value)(*(take_rows(getattr(value, f.name), mask) for f in fields(value)))
     if len(value) != len(mask):
         raise ValueError(f"per-agent value has {len(value)} rows, the mask {len(mask)}")
@@ -213,6 +216,8 @@ class Fleet:
             behaviour_id=np.concatenate([r.behaviour_id, behaviour_id.astype(np.float32)]),
             desired_fraction=np.concatenate([r.desired_fraction, desired]),
             lateral_speed=np.concatenate([r.lateral_speed, zeros]),
+            lateral_accel=np.concatenate([r.lateral_accel, zeros]),
+            changing=np.concatenate([r.changing, np.zeros(n, np.int64)]),
             lane_number=np.concatenate([r.lane_number, np.full(n, -1, np.int64)]),
             lane_count=np.concatenate([r.lane_count, np.zeros(n, np.int64)]),
             lane_changed=np.concatenate([r.lane_changed, np.zeros(n, bool)]),
@@ -391,6 +396,7 @@ class Fleet:
             curvature=frame.curvature,
             speed=r.speed,
             lateral_speed=r.lateral_speed,
+            changing=r.changing,
             desired_speed=r.desired_fraction * frame.speed_limit,
             speed_limit=frame.speed_limit,
             lane_offset=readings.lateral_pos,
@@ -403,6 +409,7 @@ class Fleet:
             # world frame's left is the fast side only in keep-right nets
             fast_side_sign=-1.0 if g.lefthand else 1.0,
         )
+        r.lanes = agents
         speeds[rows] = r.speed
         r.around = around = lane_surroundings(agents, vehicles.position, speeds, rows, g, near)
         return observe_lanes(agents, around)
@@ -561,13 +568,22 @@ class Fleet:
             raise RuntimeError("Fleet.act before Fleet.sense")
         with self.timer.phase("actuation"):
             if self.driver == "traffic":
-                result = actuate_lanes(
-                    actions, r.speed, r.lateral_speed, f.offset, f.half_width, f.speed_limit,
-                    self.dt, self.car, self.lateral, r.side_limit, r.speed_cap,
+                lanes, around = r.lanes, r.around
+                assert lanes is not None and around is not None
+                leaders = [0, 2, 4]  # own, fast-side and slow-side leader (lanes.NEIGHBOUR_SLOTS)
+                command = actuate_lanes(
+                    actions, r.speed, lanes.desired_speed, around.gap[:, leaders],
+                    around.other_speed[:, leaders], r.lateral_speed, r.lateral_accel, r.changing,
+                    lanes.lane_offset, lanes.lane_width, lanes.lanes - 1 - lanes.lane_number,
+                    lanes.lane_number, f.offset, f.half_width, f.speed_limit, self.dt, self.car,
+                    self.lateral, r.side_limit, r.speed_cap,
                 )  # fmt: skip
                 # a junction's internal edge holds only the lanes of some connections, not the
                 # carriageway: the move stays clamped to it, but leaving it is not off the road
-                result = replace(result, off_track=result.off_track & f.on_normal_edge)
+                result = replace(command.actuation, off_track=command.actuation.off_track & f.on_normal_edge)
+                mine = ~r.handed  # SUMO drives the others: no lane change of ours goes on
+                r.changing = np.where(mine, command.changing, 0)
+                r.lateral_accel = np.where(mine, command.lateral_accel, 0.0)
             else:
                 result = actuate(
                     actions, r.speed, r.angle, f.offset, f.half_width, f.curvature, f.speed_limit,

@@ -74,7 +74,7 @@ class EnvConfig:
     lane_weight: float = 0.0  # lane-discipline reward term (0 = the paper's reward), see rewards.py
     shield: bool = False  # populate's safety shield (shield.py): to evaluate a policy as populate drives it
     driver: str = "paper"  # "paper": TORCS state + the paper's reward; "traffic": lanes among SUMO traffic
-    traffic_density: tuple[float, float] = (4.0, 20.0)  # traffic driver: SUMO cars per lane-km, drawn
+    traffic_density: tuple[float, float] = (4.0, 30.0)  # traffic driver: SUMO cars per lane-km, drawn
     car: CarModel = field(default_factory=CarModel)
 
     def validate(self) -> None:

@@ -45,6 +45,7 @@ TRAFFIC_LAYOUT = (
     ("speed_error", 1),
     ("speed_limit", 1),
     ("lateral_speed", 1),
+    ("lane_change", 1),
     ("lane_offset", 1),
     ("lane_width", 1),
     ("lanes_fast_side", 1),
@@ -79,6 +80,7 @@ class LaneAgents:
     curvature: np.ndarray  # [N] 1/m of the road axis, + = turning to the geometric left
     speed: np.ndarray  # [N] m/s along the road
     lateral_speed: np.ndarray  # [N] m/s, + = towards the fast side
+    changing: np.ndarray  # [N] the lane change under way: +1 to the fast side, -1 to the slow, 0 none
     desired_speed: np.ndarray  # [N] m/s
     speed_limit: np.ndarray  # [N] m/s
     lane_offset: np.ndarray  # [N] metres from the own lane's centre, + = fast side
@@ -240,6 +242,7 @@ def observe_lanes(agents: LaneAgents, around: Surroundings) -> np.ndarray:
     put("speed_error", np.clip((agents.speed - agents.desired_speed) / 10.0, -1.0, 1.0))
     put("speed_limit", agents.speed_limit / SPEED_SCALE)
     put("lateral_speed", agents.lateral_speed / 2.0)
+    put("lane_change", agents.changing)
     put("lane_offset", np.clip(agents.lane_offset / (agents.lane_width / 2), -1.5, 1.5))
     put("lane_width", agents.lane_width / 4.0)
     put("lanes_fast_side", np.minimum(agents.lanes - 1 - agents.lane_number, MAX_LANES_SEEN) / MAX_LANES_SEEN)

@@ -129,14 +129,14 @@ class TrafficWeights:
     the slow side when that lane is free.
     """
 
-    safe_headway: float = 1.5  # s: following closer than this costs, in proportion
+    safe_headway: float = 1.0  # s: following closer than this costs, in proportion (fined below 0.9 s)
     safe_ttc: float = 4.0  # s: closing in faster than this costs, in proportion
     headway: float = 2.0
     closing: float = 1.0
     centre: float = 0.3  # per half lane width off the lane centre
     lane_change_keeper: float = 4.0  # per lane change
     lane_change_overtaker: float = 0.5
-    keep_slow_side: float = 0.15  # per step in a lane with a free lane on the slow side
+    keep_slow_side: float = 0.3  # per step in a lane with a free lane on the slow side
     pass_slow_side: float = 1.0  # per step passing a car on its slow side, at 5 m/s faster
     comfort: float = 0.3  # per (lateral acceleration / 1.5 m/s^2)^2
     comfort_longitudinal: float = 0.05  # per (acceleration / 3 m/s^2)^2
