@@ -200,7 +200,7 @@ def lane_intent(
     vanished = np.where(changing > 0, lanes_fast == 0, np.where(changing < 0, lanes_slow == 0, False))
     going = np.where(crossed | vanished | (wish == -changing), 0, changing)
     room = np.where(wish > 0, lanes_fast > 0, lanes_slow > 0)
-    return np.where((going == 0) & (wish != 0) & room, wish, going)
+    return np.where((changing == 0) & (wish != 0) & room, wish, going)
 
 
 def lateral_profile(

@@ -45,6 +45,8 @@ WARMUP_SECONDS = 10.0
 """SUMO's cars drive alone this long before the agents enter (insertion spreads out)."""
 INSERT_TRIES = 10
 """Steps an agent may wait for a free place before it sits this episode out."""
+EPISODE_DRAWS = 5
+"""Episodes drawn before one with room for at least one agent is given up on (NoRoomError)."""
 QUEUE_GAP = 20.0
 """m: an agent this close behind its leader is queueing, not failing to make progress."""
 CRAWL_EPISODES = 0.5
@@ -128,9 +130,20 @@ class TrafficEnv(BehaveEnv):
         return self._geometries[road.name]
 
     def reset_arrays(self, seed: int | None = None) -> np.ndarray:
-        """A new episode on a road drawn from the family; observations [n_inserted, D] in slot order."""
+        """A new episode on a road drawn from the family; observations [n_inserted, D] in slot order.
+
+        Dense traffic on a short road can leave no free place for any agent: the episode is then
+        drawn again (road, traffic and all), up to EPISODE_DRAWS times."""
         if seed is not None:
             self._rng = np.random.default_rng(seed)
+        for _ in range(EPISODE_DRAWS - 1):
+            try:
+                return self._start_episode()
+            except NoRoomError:
+                continue
+        return self._start_episode()
+
+    def _start_episode(self) -> np.ndarray:
         rng, cfg = self._rng, self.config
         self.scenario = self.roads[int(rng.integers(len(self.roads)))]
         self.geometry = self._geometry(self.scenario)

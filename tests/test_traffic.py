@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from behaviors import traffic_env
-from behaviors.actuation import CarModel, LaneDriving, actuate_lanes
+from behaviors.actuation import CarFollowing, CarModel, LaneDriving, actuate_lanes, following_accel
 from behaviors.control import HANDOVER_DISTANCE, Fleet
 from behaviors.env import make_env
 from behaviors.geometry import RoadGeometry, build_geometry, load_geometry
@@ -69,6 +69,7 @@ def one_agent(**over) -> LaneAgents:
         curvature=np.array([0.0]),
         speed=np.array([30.0]),
         lateral_speed=np.array([0.0]),
+        changing=np.array([0]),
         desired_speed=np.array([30.0]),
         speed_limit=np.array([33.3]),
         lane_offset=np.array([0.0]),
@@ -236,32 +237,86 @@ def test_neighbours_beyond_the_end_of_a_curved_lane_stay_in_their_lanes():
     assert around.gap[0, 4] == pytest.approx(expected, abs=1.5)  # the outer lane is lane 0 here
 
 
-def test_lateral_speed_follows_steer_within_the_acceleration_limit():
-    car, lateral, dt = CarModel(), LaneDriving(), 0.2
-    speed, lat, offset = np.array([30.0]), np.array([0.0]), np.array([0.0])
-    full_left = np.array([[1.0, 0.5, 0.0]])
-    history = []
-    for _ in range(10):
+NO_LEADERS = (np.full((1, 3), np.inf), np.full((1, 3), np.nan))
+
+
+def drive_lanes(steers, speed=30.0, lane_offset=0.0, lanes=3, lane=1, width=3.5, dt=0.2, leaders=NO_LEADERS):
+    """Run the traffic driver's actuation alone for one agent on a straight road with `lanes` lanes,
+    keeping the books SUMO would (a car whose centre crosses a line is in the next lane, its offset
+    jumps by a lane width); returns per step the lane, the offset in it, lateral speed and accel."""
+    car, lateral = CarModel(), LaneDriving()
+    state = dict(speed=np.array([speed]), lat=np.array([0.0]), acc=np.array([0.0]), changing=np.array([0]))
+    offset, rows = np.array([lane_offset]), []
+    for steer in steers:
+        carriageway = (lane - (lanes - 1) / 2) * width + offset
         out = actuate_lanes(
-            full_left, speed, lat, offset, np.array([5.25]), np.array([33.3]), dt, car, lateral
-        )
-        assert abs(out.lateral_speed[0] - lat[0]) <= lateral.max_lateral_accel * dt + 1e-12
-        lat, offset, speed = out.lateral_speed, offset + out.lateral_move, out.speed
-        history.append(lat[0])
-    assert history[-1] == pytest.approx(lateral.max_lateral_speed)
-    hold = actuate_lanes(np.array([[0.0, 0.5, 0.0]]), speed, np.array([0.0]), offset, np.array([5.25]),
-                         np.array([33.3]), dt, car, lateral)  # fmt: skip
-    assert hold.lateral_move[0] == 0.0  # steer 0 keeps the place in the lane
+            np.array([[steer, 0.5, 0.0]]), state["speed"], np.array([speed]), *leaders, state["lat"],
+            state["acc"], state["changing"], offset, np.array([width]), np.array([lanes - 1 - lane]),
+            np.array([lane]), carriageway, np.array([lanes * width / 2]), np.array([33.3]), dt, car, lateral,
+        )  # fmt: skip
+        a = out.actuation
+        offset = offset + a.lateral_move
+        if abs(offset[0]) > width / 2:  # SUMO moves the car to the next lane
+            step = int(np.sign(offset[0]))
+            lane, offset = lane + step, offset - step * width
+        state = dict(speed=a.speed, lat=a.lateral_speed, acc=out.lateral_accel, changing=out.changing)
+        rows.append((lane, offset[0], a.lateral_speed[0], out.lateral_accel[0], out.changing[0], a.speed[0]))
+    return np.array(rows)
+
+
+def test_a_lane_change_is_a_smooth_commitment_to_the_neighbour_lane_centre():
+    dt = 0.2
+    run = drive_lanes([1.0] + [0.0] * 60, dt=dt)  # one step of full steer, then steer 0
+    lane, offset, lat_speed, lat_accel = run[:, 0], run[:, 1], run[:, 2], run[:, 3]
+    assert lane[-1] == 2 and abs(offset[-1]) < 0.02  # in the new lane, at its centre
+    moving = np.flatnonzero(np.abs(lat_speed) > 0.05)
+    duration = (moving[-1] - moving[0] + 1) * dt
+    assert 4.0 <= duration <= 8.0  # recorded drivers: 5-6 s on average
+    assert np.abs(lat_accel).max() <= LaneDriving().max_lateral_accel + 1e-9
+    assert np.abs(np.diff(lat_accel)).max() / dt <= LaneDriving().max_lateral_jerk + 1e-9
+    assert run[-1, 4] == 0  # the change is over
+    assert np.all(np.diff(lane) >= 0) and lane.max() == 2  # one lane, never two
+
+
+def test_steer_zero_centres_the_car_and_a_change_can_be_called_off():
+    centring = drive_lanes([0.0] * 40, lane_offset=0.8)
+    assert centring[0, 0] == 1 and abs(centring[-1, 1]) < 0.02
+    assert np.abs(centring[:, 1]).max() <= 0.8 + 1e-9  # no overshoot across the centre line's far side
+    called_off = drive_lanes([1.0] * 5 + [-1.0] + [0.0] * 40)
+    assert set(called_off[:, 0]) == {1} and abs(called_off[-1, 1]) < 0.02
+    assert called_off[5, 4] == 0  # steering the other way ends the change at once
+
+
+def test_no_lane_change_towards_a_side_without_a_lane():
+    run = drive_lanes([1.0] * 30, lane=2)  # already in the fast lane of three
+    assert set(run[:, 4]) == {0} and np.abs(run[:, 1]).max() < 1e-9
 
 
 def test_lateral_motion_is_limited_at_low_speed_and_at_the_border():
+    slow = drive_lanes([1.0] * 5, speed=2.0)
+    assert np.abs(slow[:, 2]).max() <= LaneDriving().max_slip * 2.0 + 1e-9
     car, lateral = CarModel(), LaneDriving()
-    slow = actuate_lanes(np.array([[1.0, 0.0, 0.0]]), np.array([2.0]), np.array([0.0]), np.array([0.0]),
-                         np.array([5.25]), np.array([33.3]), 0.2, car, lateral)  # fmt: skip
-    assert abs(slow.lateral_speed[0]) <= lateral.max_slip * slow.speed[0] + 1e-12
-    edge = actuate_lanes(np.array([[1.0, 0.0, 0.0]]), np.array([30.0]), np.array([1.5]), np.array([4.3]),
-                         np.array([5.25]), np.array([33.3]), 0.2, car, lateral)  # fmt: skip
-    assert edge.off_track[0]
+    edge = actuate_lanes(
+        np.array([[0.0, 0.5, 0.0]]), np.array([30.0]), np.array([30.0]), *NO_LEADERS, np.array([1.2]),
+        np.array([0.0]), np.array([0]), np.array([-0.5]), np.array([3.5]), np.array([0]), np.array([2]),
+        np.array([4.3]), np.array([5.25]), np.array([33.3]), 0.2, car, lateral,
+    )  # fmt: skip
+    assert edge.actuation.off_track[0]
+
+
+def test_car_following_settles_at_a_human_headway_and_stops_behind_a_standing_car():
+    law = CarFollowing()
+    speed = np.array([25.0])
+    gap = np.array([25.0 * law.time_headway + law.min_gap])
+    at_rest = following_accel(speed, np.array([1e6]), gap, speed, law)
+    assert abs(at_rest[0]) < 0.05  # following a leader at its speed and the law's headway: no pull
+    v, g, dt = 20.0, 120.0, 0.1
+    for _ in range(600):  # a standing car 120 m ahead
+        a = following_accel(np.array([v]), np.array([30.0]), np.array([g]), np.array([0.0]), law)[0]
+        a = max(a, -CarModel().max_brake)
+        v = max(v + a * dt, 0.0)
+        g -= v * dt
+    assert v < 0.05 and law.min_gap - 0.5 < g < law.min_gap + 1.0  # stands a few metres behind it
 
 
 def traffic_step(**over) -> TrafficStep:
@@ -313,7 +368,7 @@ def test_short_headway_closing_in_lane_changes_and_passing_on_the_slow_side_cost
     terms = traffic_rewards(
         traffic_step(gap=gap, other_speed=other, lane_changed=np.array([True, True])), w
     ).as_dict()
-    assert terms["headway"] == pytest.approx(-w.headway * (1.5 - 0.5) / 1.5)
+    assert terms["headway"] == pytest.approx(-w.headway * (w.safe_headway - 0.5) / w.safe_headway)
     assert terms["closing"] == pytest.approx(-w.closing * (4 - 3) / 4)
     assert terms["lane_change"] == pytest.approx([-w.lane_change_keeper, -w.lane_change_overtaker])
     assert terms["pass_slow_side"] == pytest.approx(-w.pass_slow_side * 10 / 5 / 2)
@@ -463,7 +518,7 @@ def test_sumo_takes_an_agent_whose_lane_becomes_an_exit_and_hands_it_back(tmp_pa
         while "agent" in sim.vehicle_ids() and steps < 600:
             fleet.sense(sim, sim.read_vehicles(), True)
             handed_at_some_point |= bool(fleet.rows.handed[0])
-            fleet.act(sim, np.array([[0.0, 0.25, 0.0]], np.float32))
+            fleet.act(sim, np.array([[0.0, 0.5, 0.0]], np.float32))
             sim.step()
             steps += 1
             if "agent" in sim.vehicle_ids():
@@ -497,7 +552,7 @@ def test_an_agent_leaving_by_a_one_lane_ramp_is_handed_over_before_it_and_not_gi
             lane = sim.read_agents(["agent"]).lane_id[0]
             fleet.sense(sim, sim.read_vehicles(), True)
             handed_on.append((lane, bool(fleet.rows.handed[0])))
-            fleet.act(sim, np.array([[0.0, 0.25, 0.0]], np.float32))
+            fleet.act(sim, np.array([[0.0, 0.5, 0.0]], np.float32))
             sim.step()
         first = next(k for k, (_, handed) in enumerate(handed_on) if handed)
         assert handed_on[first][0] == "A_0"  # before the ramp
@@ -517,8 +572,8 @@ def test_an_agent_reaching_over_a_lane_that_drops_is_centred_by_sumo_and_stays_o
             fleet.sense(sim, sim.read_vehicles(), True)
             handed |= bool(fleet.rows.handed[0])
             leaning = readings.lane_id[0] == "m0_1" and readings.lateral_pos[0] > -1.0
-            steer = -0.5 if leaning else 0.0  # lean over the line into the ending lane and stay there
-            off_track |= bool(fleet.act(sim, np.array([[steer, 0.2, 0.0]], np.float32)).off_track[0])
+            steer = -1.0 if leaning else 0.0  # change into the ending lane whenever in the other
+            off_track |= bool(fleet.act(sim, np.array([[steer, 0.5, 0.0]], np.float32)).off_track[0])
             sim.step()
         assert "m1_0" in lanes or "m1_1" in lanes  # it got through the drop
         assert handed and not off_track
@@ -587,7 +642,7 @@ def test_an_agent_in_the_fast_lane_is_handed_over_on_a_long_edge_well_before_its
             fleet.sense(sim, sim.read_vehicles(), True)
             if fleet.rows.handed[0] and first_handed_on is None:
                 first_handed_on = (readings.lane_id[0], float(readings.lane_pos[0]))
-            fleet.act(sim, np.array([[0.0, 0.25, 0.0]], np.float32))
+            fleet.act(sim, np.array([[0.0, 0.5, 0.0]], np.float32))
             sim.step()
             if "agent" in sim.vehicle_ids():
                 lowest_speed = min(lowest_speed, float(sim.read_speeds(["agent"])[0]))
@@ -650,7 +705,7 @@ def test_an_agent_given_back_has_its_own_vtype_and_exact_sideways_moves_again(tm
             elif types_while_handed:
                 back = True
                 break
-            fleet.act(sim, np.array([[0.0, 0.25, 0.0]], np.float32))
+            fleet.act(sim, np.array([[0.0, 0.5, 0.0]], np.float32))
             sim.step()
         assert back and types_while_handed == {"behave_keeper@agent"}
         assert sim._sumo.vehicle.getTypeID("agent") == "behave_keeper"
