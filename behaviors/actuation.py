@@ -116,12 +116,14 @@ def actuate(
 
 @dataclass(frozen=True)
 class CarFollowing:
-    """The car-following law the traffic driver's longitudinal action adjusts: the Intelligent
-    Driver Model (Treiber, Hennecke and Helbing 2000) with a human's time headway and comfort.
+    """The car-following law the traffic driver's longitudinal action adjusts: the Improved
+    Intelligent Driver Model (Treiber and Kesting 2013) with a human's time headway and comfort.
 
     A policy that only learns an acceleration from reward follows at 3-4 s and pulls away from a
     stop at 0.5 m/s^2, so the traffic it makes jams at a third of a motorway's capacity; with this
-    law under it the policy starts from human following and learns where to deviate from it.
+    law under it the policy starts from human following and learns where to deviate from it. The
+    improved model, unlike the original IDM, holds the desired speed until the gap nears
+    `time_headway` (the original's equilibrium gap at 20 cars per lane-km costs 15% of the flow).
     """
 
     time_headway: float = 1.2  # s: desired gap at speed (drivers: median about 1.4 s, fined below 0.9)
@@ -138,16 +140,26 @@ def following_accel(
     leader_speed: np.ndarray,
     law: CarFollowing,
 ) -> np.ndarray:
-    """[N] IDM acceleration; `gap` is bumper to bumper (+inf with no leader, then `leader_speed` is
-    ignored)."""
-    free = 1.0 - (speed / np.maximum(desired_speed, 0.1)) ** law.exponent
+    """[N] acceleration by the improved IDM; `gap` is bumper to bumper (+inf with no leader, then
+    `leader_speed` is ignored)."""
+    a, b = law.accel, law.comfortable_decel
+    desired = np.maximum(desired_speed, 0.1)
     has_leader = np.isfinite(gap)
     closing = speed - np.where(has_leader, np.nan_to_num(leader_speed), speed)
     wanted = law.min_gap + np.maximum(
-        speed * law.time_headway + speed * closing / (2.0 * np.sqrt(law.accel * law.comfortable_decel)), 0.0
+        speed * law.time_headway + speed * closing / (2.0 * np.sqrt(a * b)), 0.0
     )
-    interaction = np.where(has_leader, (wanted / np.maximum(np.where(has_leader, gap, 1.0), 0.1)) ** 2, 0.0)
-    return law.accel * (free - interaction)
+    z = np.where(has_leader, wanted / np.maximum(np.where(has_leader, gap, 1.0), 0.1), 0.0)
+    below = speed <= desired
+    free = np.where(
+        below,
+        a * (1.0 - (speed / desired) ** law.exponent),
+        -b * (1.0 - (desired / np.maximum(speed, 0.1)) ** (a * law.exponent / b)),
+    )
+    safe_free = np.maximum(free, 1e-9)
+    close = np.where(below, a * (1.0 - z**2), free + a * (1.0 - z**2))
+    loose = np.where(below, free * (1.0 - z ** (2.0 * a / safe_free)), free)
+    return np.where(z >= 1.0, close, loose)
 
 
 @dataclass(frozen=True)
