@@ -158,7 +158,7 @@ def following_accel(
     )
     safe_free = np.maximum(free, 1e-9)
     close = np.where(below, a * (1.0 - z**2), free + a * (1.0 - z**2))
-    loose = np.where(below, free * (1.0 - z ** (2.0 * a / safe_free)), free)
+    loose = np.where(below, free * (1.0 - np.minimum(z, 1.0) ** (2.0 * a / safe_free)), free)
     return np.where(z >= 1.0, close, loose)
 
 

@@ -12,6 +12,7 @@ from gymnasium.utils.env_checker import check_env
 import behaviors.gym_env
 from behaviors.errors import BehaveError
 from behaviors.gym_env import ENV_ID, RESET_TRIES
+from behaviors.lanes import TRAFFIC_OBS_SIZE
 from behaviors.render import AGENT
 
 
@@ -25,7 +26,7 @@ def test_registered_env_passes_gymnasium_check_and_close_frees_sumo() -> None:
     env.close()
     other = gymnasium.make(ENV_ID, scenario="ring")
     obs, _ = other.reset(seed=1)
-    assert obs.shape == (26,)
+    assert obs.shape == (TRAFFIC_OBS_SIZE,)
     other.close()
 
 
