@@ -130,6 +130,7 @@ class TrafficWeights:
     """
 
     safe_headway: float = 1.0  # s: following closer than this costs, in proportion (fined below 0.9 s)
+    standstill_gap: float = 2.0  # m: added to the safe headway's gap; a standing queue needs no more
     safe_ttc: float = 4.0  # s: closing in faster than this costs, in proportion
     headway: float = 2.0
     closing: float = 1.0
@@ -198,6 +199,7 @@ def traffic_rewards(step: TrafficStep, w: TrafficWeights) -> TrafficTerms:
     )
     target = np.where(overtaker, step.desired_speed, lane_allows)
     speed = 1.0 - np.abs(v - target) / np.maximum(target, 1.0)
+    safe_gap = w.standstill_gap + w.safe_headway * v  # a queue's few metres at a standstill
     closing_speed = np.where(has_lead, v - np.nan_to_num(lead_speed), 0.0)
     ttc = np.where(closing_speed > 0.1, lead_gap / np.maximum(closing_speed, 0.1), np.inf)
     slow_gap, slow_follow_gap = step.gap[:, 4], step.gap[:, 5]
@@ -210,7 +212,7 @@ def traffic_rewards(step: TrafficStep, w: TrafficWeights) -> TrafficTerms:
     change_cost = np.where(overtaker, w.lane_change_overtaker, w.lane_change_keeper)
     values = {
         "speed": np.clip(speed, -1.0, 1.0),
-        "headway": -w.headway * np.clip((w.safe_headway - headway_s) / w.safe_headway, 0.0, 1.0),
+        "headway": -w.headway * np.where(has_lead, np.clip(1.0 - lead_gap / safe_gap, 0.0, 1.0), 0.0),
         "closing": -w.closing * np.clip((w.safe_ttc - ttc) / w.safe_ttc, 0.0, 1.0),
         "centre": -w.centre * np.minimum(step.lane_deviation, 1.0),
         "lane_change": -change_cost * step.lane_changed,

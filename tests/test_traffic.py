@@ -368,7 +368,12 @@ def test_short_headway_closing_in_lane_changes_and_passing_on_the_slow_side_cost
     terms = traffic_rewards(
         traffic_step(gap=gap, other_speed=other, lane_changed=np.array([True, True])), w
     ).as_dict()
-    assert terms["headway"] == pytest.approx(-w.headway * (w.safe_headway - 0.5) / w.safe_headway)
+    safe_gap = w.standstill_gap + w.safe_headway * 30.0
+    assert terms["headway"] == pytest.approx(-w.headway * (1 - 15.0 / safe_gap))
+    queue = np.full((2, 6), np.inf)
+    queue[:, 0] = 3.0  # standing 3 m behind a standing car: a queue, not tailgating
+    still = traffic_step(speed=np.zeros(2), gap=queue, other_speed=np.where(np.isinf(queue), np.nan, 0.0))
+    assert traffic_rewards(still, w).as_dict()["headway"] == pytest.approx([0.0, 0.0])
     assert terms["closing"] == pytest.approx(-w.closing * (4 - 3) / 4)
     assert terms["lane_change"] == pytest.approx([-w.lane_change_keeper, -w.lane_change_overtaker])
     assert terms["pass_slow_side"] == pytest.approx(-w.pass_slow_side * 10 / 5 / 2)
