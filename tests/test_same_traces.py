@@ -1,0 +1,103 @@
+"""The same seed gives the same FCD, byte for byte, as recorded: a change to how the code is laid out
+must not change what the cars do.
+
+The policies here are built so that their arithmetic is exact on any CPU (every unit sums at most
+two non-zero products, the rest are exact zeros), so the recorded hashes hold on whatever machine
+the tests run: a trained network's float32 sums may round differently on another CPU's kernels.
+The traffic policy seeks the middle lane (it changes lanes, holds centres, follows); the paper
+policy drives straight at half throttle. Each case is a short `make run`-like populate, and one
+`--sumocfg --share` run on a net with a lane drop.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import pytest
+import torch
+
+from behaviors.ddpg.checkpoint import save_checkpoint
+from behaviors.ddpg.networks import Actor
+from behaviors.lanes import TRAFFIC_OBS_SIZE, TRAFFIC_SLICES
+from behaviors.populate import PopulateConfig, config_from, populate
+from behaviors.sensors import OBS_SIZE_WITH_ID
+from sumo_scenarios.osm_like import Demand, build_osm_like
+
+HIDDEN = (4, 4)
+
+
+def exact_actor(obs_dim: int, steer_inputs: dict[int, float]) -> Actor:
+    """An actor whose steer is tanh of a weighted sum of at most two inputs (through two ReLU
+    layers that pass them on), accel 0.5 and brake ~0."""
+    actor = Actor(obs_dim, HIDDEN)
+    with torch.no_grad():
+        for layer in (actor.body[0], actor.body[2], actor.head):
+            layer.weight.zero_()
+            layer.bias.zero_()
+        for unit, (index, weight) in enumerate(steer_inputs.items()):
+            sign = 1.0 if weight > 0 else -1.0
+            actor.body[0].weight[unit, index] = 1.0
+            actor.body[2].weight[unit, unit] = 1.0
+            actor.head.weight[0, unit] = abs(weight) * sign
+        actor.head.bias[2] = -30.0
+    return actor
+
+
+def save_actor(actor: Actor, path: Path, behaviour: str) -> Path:
+    meta = {
+        "algorithm": "ps-ddpg",
+        "behaviour": behaviour,
+        "behaviours": ["overtaking", "lanekeeping"],
+        "obs_dim": actor.obs_dim,
+        "observation_layout": "built by tests/test_same_traces.py",
+        "normalisation": "as the driver's observation",
+        "hidden": list(HIDDEN),
+        "training_steps": 0,
+    }
+    save_checkpoint(path, actor_state=actor.state_dict(), meta=meta)
+    return path
+
+
+def middle_lane_seeker(path: Path) -> Path:
+    """Steer towards the side with more lanes: every agent ends up in the middle of three."""
+    fast = TRAFFIC_SLICES["lanes_fast_side"].start
+    slow = TRAFFIC_SLICES["lanes_slow_side"].start
+    return save_actor(exact_actor(TRAFFIC_OBS_SIZE, {fast: 3.0, slow: -3.0}), path, "multi")
+
+
+def straight_driver(path: Path) -> Path:
+    return save_actor(exact_actor(OBS_SIZE_WITH_ID, {}), path, "multi")
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+RECORDED = {
+    "highway_traffic": "8b15896db7428ba9d9b5a66f6fd3695a2011664552c7d756a3b24873a607ff9f",
+    "highway_paper": "c71e6c70a84e8053750d5bd1770a37bf2f5095115cadc1eb75e33580b00da5d3",
+    "share_lanedrop": "1e90417a453cdd6b5144eb4745e7a6ea7b1ff9eb522fd16658dd5d4e2a488b2b",
+}
+"""sha256 of each case's FCD (csv), recorded on the code before the driver became one object."""
+
+
+def run_case(case: str, tmp_path: Path) -> Path:
+    fcd = tmp_path / f"{case}.csv"
+    common = {"seed": 3, "fcd": fcd, "precision": "float32"}
+    if case == "highway_traffic":
+        policy = middle_lane_seeker(tmp_path / "seeker.pt")
+        populate(PopulateConfig(policy=policy, duration=40.0, keep_count=True, **common))
+    elif case == "highway_paper":
+        policy = straight_driver(tmp_path / "straight.pt")
+        populate(PopulateConfig(policy=policy, duration=40.0, keep_count=True, **common))
+    else:
+        built = build_osm_like("lanedrop", tmp_path, Demand(end=60.0, scale=0.6))
+        policy = middle_lane_seeker(tmp_path / "seeker.pt")
+        populate(config_from(built.sumocfg, share=0.3, policy=policy, shield=True, **common))
+    return fcd
+
+
+@pytest.mark.parametrize("case", sorted(RECORDED))
+def test_fcd_is_byte_for_byte_as_recorded(case: str, tmp_path: Path) -> None:
+    assert sha256(run_case(case, tmp_path)) == RECORDED[case]
