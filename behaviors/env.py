@@ -16,10 +16,10 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from behaviors.actuation import CarModel
-from behaviors.control import DRIVERS, Fleet
+from behaviors.control import Fleet
+from behaviors.drivers import DRIVERS, make_driver
 from behaviors.errors import BehaveError
 from behaviors.geometry import RoadGeometry, load_geometry
-from behaviors.lanes import TRAFFIC_OBS_SIZE
 from behaviors.render import RENDER_MODES, check_render_mode, top_down
 from behaviors.rewards import (
     NO_PROGRESS_SECONDS,
@@ -27,7 +27,6 @@ from behaviors.rewards import (
     race_positions,
     step_rewards,
 )
-from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT
 from behaviors.sim import SimOptions, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
 from sumo_scenarios import SCENARIO_NAMES, Scenario, get_scenario, route_edges
@@ -126,9 +125,12 @@ class EnvConfig:
 
     @property
     def obs_size(self) -> int:
-        if self.driver == "traffic":
-            return TRAFFIC_OBS_SIZE
-        return OBS_SIZE_WITH_ID if self.behaviour == "multi" else OBS_SIZE
+        return make_driver(self.driver).obs_size(self.with_id)
+
+    @property
+    def with_id(self) -> bool:
+        """Whether the agents see their behaviour id (multi-behaviour runs)."""
+        return self.behaviour == "multi"
 
     def behaviour_ids(self) -> np.ndarray:
         """Behaviour id per agent slot (1 = overtaker), in start-formation order from the front."""
@@ -205,12 +207,19 @@ class BehaveEnv(ParallelEnv):
         self.lap = route_edges(self.scenario)
         self.slot_behaviour = config.behaviour_ids()
         self.possible_agents = [f"agent_{i}" for i in range(config.n_agents)]
-        self._obs_space = observation_space(config.obs_size)
+        self._obs_space = make_driver(config.driver).observation_space(config.with_id)
         self._act_space = action_space()
         self._check_capacity()
         self.sim: SumoSim | None = None
         self.timer = PhaseTimer()
-        self.fleet = Fleet(self.geometry, config.car, config.step_length, self.timer, config.shield)
+        self.fleet = Fleet(
+            self.geometry,
+            config.car,
+            config.step_length,
+            self.timer,
+            make_driver(config.driver),
+            config.shield,
+        )
         self.agents: list[str] = []
         self._live_slots = np.zeros(0, np.int64)
         self._rng = np.random.default_rng(config.seed)
@@ -439,7 +448,9 @@ class BehaveEnv(ParallelEnv):
         self._passive_on_road = set(self.passive_ids)
         self.agents = list(agent_ids)
         self._live_slots = np.arange(len(agent_ids))
-        self.fleet = Fleet(self.geometry, cfg.car, cfg.step_length, self.timer, cfg.shield)
+        self.fleet = Fleet(
+            self.geometry, cfg.car, cfg.step_length, self.timer, make_driver(cfg.driver), cfg.shield
+        )
         self.fleet.add(agent_ids, np.full(len(agent_ids), speed), self.slot_behaviour)
         self.progress = self.start_progress.copy()
         self._car_row = {vid: k for k, vid in enumerate(vids)}
@@ -525,35 +536,6 @@ class BehaveEnv(ParallelEnv):
         self.fleet.keep(~leaving[present])
         self.agents = [n for n, leave in zip(names, leaving, strict=True) if not leave]
         self._live_slots = slots[~leaving]
-
-
-def observation_space(size: int) -> spaces.Box:
-    """Bounds of every normalised value (see sensors.OBSERVATION_LAYOUT)."""
-    bounds = {
-        "angle": (-1, 1),
-        "track": (0, 1),
-        "trackPos": (-1, 1),
-        "speedX": (-1, 1),
-        "speedY": (-1, 1),
-        "speedZ": (-1, 1),
-        "wheelSpinVel": (0, 2),
-        "rpm": (0, 1),
-        "opponents": (0, 1),
-    }
-    low = np.concatenate([np.full(n, bounds[name][0]) for name, n in OBSERVATION_LAYOUT])
-    high = np.concatenate([np.full(n, bounds[name][1]) for name, n in OBSERVATION_LAYOUT])
-    if size == OBS_SIZE_WITH_ID:
-        low, high = np.append(low, 0.0), np.append(high, 1.0)
-    return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
-
-
-def observation_space_traffic() -> spaces.Box:
-    """Bounds of the traffic observation (lanes.TRAFFIC_LAYOUT): every value within [-1.5, 1.5]."""
-    return spaces.Box(
-        np.full(TRAFFIC_OBS_SIZE, -1.5, np.float32),
-        np.full(TRAFFIC_OBS_SIZE, 1.5, np.float32),
-        dtype=np.float32,
-    )
 
 
 def action_space() -> spaces.Box:

@@ -42,6 +42,7 @@ from behaviors.actuation import CarModel
 from behaviors.control import Fleet
 from behaviors.ddpg.checkpoint import load_actor, load_checkpoint
 from behaviors.ddpg.networks import driving_function
+from behaviors.drivers import make_driver
 from behaviors.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.errors import BehaveError
 from behaviors.export import FCD_SUFFIXES, fcd_options, require_projection, seal_fcd
@@ -371,7 +372,9 @@ class Population:
         self._check_capacity()
         self.rng = np.random.default_rng(config.seed)
         self.timer = PhaseTimer()
-        self.fleet = Fleet(self.geometry, CarModel(), config.step_length, self.timer, config.shield, driver)
+        self.fleet = Fleet(
+            self.geometry, CarModel(), config.step_length, self.timer, make_driver(driver), config.shield
+        )
         self.summary = PopulateSummary()
         self.log = AgentLog(config.step_length)
         self.routes: RoutePool | None = None  # made with the simulation it hands routes to

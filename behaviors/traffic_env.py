@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from behaviors.control import Fleet
+from behaviors.drivers import make_driver
 from behaviors.env import (
     BACKGROUND_TYPE,
     KEEPER_TYPE,
@@ -26,7 +27,6 @@ from behaviors.env import (
     EnvConfig,
     StepBatch,
     action_space,
-    observation_space_traffic,
 )
 from behaviors.errors import BehaveError
 from behaviors.geometry import RoadGeometry, load_geometry
@@ -109,13 +109,18 @@ class TrafficEnv(BehaveEnv):
         self.lap = route_edges(self.scenario)
         self.slot_behaviour = config.behaviour_ids()
         self.possible_agents = [f"agent_{i}" for i in range(config.n_agents)]
-        self._obs_space = observation_space_traffic()
+        self._obs_space = make_driver(config.driver).observation_space(config.with_id)
         self._act_space = action_space()
         self.sim: SumoSim | None = None
         self.timer = PhaseTimer()
         self.weights = TrafficWeights()
         self.fleet = Fleet(
-            self.geometry, config.car, config.step_length, self.timer, config.shield, "traffic"
+            self.geometry,
+            config.car,
+            config.step_length,
+            self.timer,
+            make_driver(config.driver),
+            config.shield,
         )
         self.agents: list[str] = []
         self._live_slots = np.zeros(0, np.int64)
@@ -215,7 +220,9 @@ class TrafficEnv(BehaveEnv):
         ids = [names[k] for k in slots]
         sim.take_control(ids)
         behaviour = self.slot_behaviour[slots]
-        self.fleet = Fleet(self.geometry, cfg.car, cfg.step_length, self.timer, cfg.shield, "traffic")
+        self.fleet = Fleet(
+            self.geometry, cfg.car, cfg.step_length, self.timer, make_driver(cfg.driver), cfg.shield
+        )
         self.fleet.add(ids, sim.read_speeds(ids), behaviour, desired_fractions(behaviour, rng))
         self.agents = ids
         self._live_slots = slots
@@ -229,8 +236,8 @@ class TrafficEnv(BehaveEnv):
         slots = self._live_slots
         n = len(slots)
         assert fleet.rows.frame is not None
-        desired = fleet.rows.desired_fraction * fleet.rows.frame.speed_limit
-        before_speed, before_lateral = fleet.rows.speed.copy(), fleet.rows.lateral_speed.copy()
+        desired = fleet.own.desired_fraction * fleet.rows.frame.speed_limit
+        before_speed, before_lateral = fleet.rows.speed.copy(), fleet.own.lateral_speed.copy()
         actuation = fleet.act(sim, actions)
         assert actuation.lateral_speed is not None
         contact, vehicles, present, next_obs = self._advance(sim, True)
@@ -239,11 +246,11 @@ class TrafficEnv(BehaveEnv):
         deviation = np.zeros(n)
         changed = np.zeros(n, bool)
         if present.any():
-            around, frame = fleet.rows.around, fleet.rows.frame
+            around, frame = fleet.own.around, fleet.rows.frame
             assert around is not None and frame is not None
             gap[present], other[present] = around.gap, around.other_speed
             deviation[present] = frame.lane_deviation
-            changed[present] = fleet.rows.lane_changed
+            changed[present] = fleet.own.lane_changed
         collided = np.zeros(n, bool)
         collided[present] = fleet.involved(vehicles, contact)
         off_track = actuation.off_track & present

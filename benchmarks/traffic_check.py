@@ -42,7 +42,7 @@ def main() -> None:
         while env.agents:
             with torch.inference_mode():
                 actions = actor(torch.as_tensor(obs)).numpy()
-            before = dict(zip(env.fleet.ids, env.fleet.rows.lateral_speed.tolist(), strict=True))
+            before = dict(zip(env.fleet.ids, env.fleet.own.lateral_speed.tolist(), strict=True))
             batch = env.step_arrays(actions)
             terms = batch.terms.as_dict()
             for g, stats in acc.items():
@@ -50,10 +50,10 @@ def main() -> None:
                 stats["km"] += float(batch.speed[rows].sum() * dt / 1000)
                 stats["changes"] += int((terms["lane_change"][rows] < 0).sum())
                 stats["lost"] += int((batch.collided | batch.off_track)[rows].sum())
-            r = env.fleet.rows
-            if len(r.ids) and r.around is not None:
-                lat_acc = np.abs(r.lateral_speed - np.array([before[i] for i in r.ids])) / dt
-                gap, speed = r.around.gap[:, 0], r.speed
+            r, own = env.fleet.rows, env.fleet.own
+            if len(r.ids) and own.around is not None:
+                lat_acc = np.abs(own.lateral_speed - np.array([before[i] for i in r.ids])) / dt
+                gap, speed = own.around.gap[:, 0], r.speed
                 following = (gap < 150) & (speed > 5)
                 for g, stats in acc.items():
                     rows = r.behaviour_id == g

@@ -16,6 +16,7 @@ from behaviors.actuation import CarModel
 from behaviors.control import Fleet
 from behaviors.ddpg.checkpoint import save_checkpoint
 from behaviors.ddpg.networks import Actor
+from behaviors.drivers import make_driver
 from behaviors.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.errors import BehaveError
 from behaviors.export import fcd_options, read_fcd
@@ -268,7 +269,7 @@ def signal_net(tmp: Path) -> Path:
 def test_an_agent_stops_at_a_red_light_instead_of_entering_the_junction(tmp_path):
     """Without the handover the policy (here: full throttle) drives through the red at speed."""
     net = signal_net(tmp_path)
-    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), driver="traffic")
+    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), make_driver("traffic"))
     options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
     with SumoSim(options) as sim:
         sim.add_route("through", ["in", "out"])

@@ -12,9 +12,11 @@ import pytest
 
 from behaviors import traffic_env
 from behaviors.actuation import CarFollowing, CarModel, LaneDriving, actuate_lanes, following_accel
-from behaviors.control import HANDOVER_DISTANCE, Fleet
+from behaviors.control import Fleet
+from behaviors.drivers import make_driver
 from behaviors.env import make_env
 from behaviors.geometry import RoadGeometry, build_geometry, load_geometry
+from behaviors.handover import HANDOVER_DISTANCE
 from behaviors.lanes import (
     GAP_RANGE,
     TRAFFIC_OBS_SIZE,
@@ -504,7 +506,7 @@ def keeper_on(
     net: Path, edges: list[str], *, lane: int, pos: float, speed: float
 ) -> Iterator[tuple[SumoSim, Fleet]]:
     """SUMO on `net` with one keeper, "agent", on the route `edges`, driven by a traffic-driver Fleet."""
-    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), driver="traffic")
+    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), make_driver("traffic"))
     options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
     with SumoSim(options) as sim:
         sim.add_route("route", edges)
@@ -592,7 +594,7 @@ def test_the_fast_side_is_the_higher_lane_index_in_right_and_left_hand_nets(tmp_
     subprocess.run(cmd + (["--lefthand"] if lefthand else []), check=True, capture_output=True)
     geometry = load_geometry(net)
     assert geometry.lefthand == lefthand
-    fleet = Fleet(geometry, CarModel(), 0.2, PhaseTimer(), driver="traffic")
+    fleet = Fleet(geometry, CarModel(), 0.2, PhaseTimer(), make_driver("traffic"))
     options = SimOptions(net=net, additional=(get_scenario("highway").vtypes,), step_length=0.2)
     with SumoSim(options) as sim:
         sim.add_route("main", ["e0", "e1"])
@@ -608,7 +610,7 @@ def test_the_fast_side_is_the_higher_lane_index_in_right_and_left_hand_nets(tmp_
 
 
 def test_the_end_of_a_route_is_not_a_lane_that_ends():
-    from behaviors.control import lane_leads_on
+    from behaviors.handover import lane_leads_on
 
     # own lane ends 300 m before the edge's best lane (an exit); the fast lane goes as far as the best
     ends = np.array([[400.0, 700.0, 0.0], [700.0, 700.0, 700.0]])

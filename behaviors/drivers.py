@@ -1,0 +1,329 @@
+"""Driver models: everything that differs between the paper's driver and the traffic driver.
+
+A driver owns what its agents see (observation size, space and sensing), how actions move them
+(actuation), its own per-agent rows, the critic's reward scale and its exploration noise. The fleet
+(control.py), the environments, training, populate and the policy loader ask the driver; none of
+them checks a driver's name. A new driver is one new class here (or in a module of its own) and
+one entry in DRIVERS.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar
+
+import numpy as np
+from gymnasium import spaces
+
+from behaviors.actuation import Actuation, LaneDriving, actuate, actuate_lanes
+from behaviors.control import Fleet, Observed, Sensing, road_frame
+from behaviors.errors import BehaveError
+from behaviors.handover import (
+    SIGNAL_DISTANCE,
+    SIGNAL_SECONDS,
+    LaneEnds,
+    decide,
+    lane_leads_on,
+)
+from behaviors.lanes import SEARCH_RADIUS, TRAFFIC_OBS_SIZE, LaneAgents, Surroundings, observe_lanes
+from behaviors.lanes import surroundings as lane_surroundings
+from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT, AgentFrame, neighbours, observe
+from behaviors.sim import SumoSim
+
+JUNCTION_LEADS_ON = 1e4
+"""m: inside a junction every lane counts as leading on; SUMO is asked again on the next lane."""
+ONE_LANE_HORIZON = 1000.0
+"""m: how far beyond the end of its edge an agent looks along its route for a road of one car lane
+(SUMO drives it there); counted from the edge's end, since it is looked up once per lane entered and
+a motorway edge may be longer than any horizon."""
+
+
+PAPER_BOUNDS = {
+    "angle": (-1, 1),
+    "track": (0, 1),
+    "trackPos": (-1, 1),
+    "speedX": (-1, 1),
+    "speedY": (-1, 1),
+    "speedZ": (-1, 1),
+    "wheelSpinVel": (0, 2),
+    "rpm": (0, 1),
+    "opponents": (0, 1),
+}
+"""Bounds of each normalised value of the paper's observation."""
+
+
+class PaperDriver:
+    """The paper's TORCS-like state (65 floats, 66 with the behaviour id), its reward and its
+    heading model: steer turns a heading of the car's own (actuation.actuate)."""
+
+    name = "paper"
+    reward_scale = 0.01
+    """The paper's rewards are ~100 per step (km/h): the critic sees them scaled by this."""
+    exploration: ClassVar[dict[str, tuple[float, float, float]]] = {}
+    """The learner's default Ornstein-Uhlenbeck noise."""
+
+    def obs_size(self, with_id: bool) -> int:
+        return OBS_SIZE_WITH_ID if with_id else OBS_SIZE
+
+    def observation_space(self, with_id: bool) -> spaces.Box:
+        """Bounds of every normalised value (see sensors.OBSERVATION_LAYOUT)."""
+        low = np.concatenate([np.full(n, PAPER_BOUNDS[name][0]) for name, n in OBSERVATION_LAYOUT])
+        high = np.concatenate([np.full(n, PAPER_BOUNDS[name][1]) for name, n in OBSERVATION_LAYOUT])
+        if with_id:
+            low, high = np.append(low, 0.0), np.append(high, 1.0)
+        return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
+
+    def new_rows(self, count: int, desired_fraction: np.ndarray | None) -> None:
+        return None
+
+    def observe(self, fleet: Fleet, sim: SumoSim, sensing: Sensing, with_id: bool) -> Observed:
+        r, vehicles, rows = fleet.rows, sensing.vehicles, sensing.rows
+        front = vehicles.position[rows]
+        r.frame = frame = road_frame(
+            fleet.geometry, sensing.readings, sensing.lane_rows, front, r.angle, fleet.car
+        )
+        centres = vehicles.position.copy()
+        centres[rows] = frame.centre  # agents' centres are known exactly; others' fronts suffice
+        agents = AgentFrame(
+            centre=frame.centre,
+            heading=frame.heading,
+            angle=r.angle,
+            speed=r.speed,
+            track_pos=np.clip(frame.offset / frame.half_width, -1.0, 1.0),
+        )
+        return Observed(observe(agents, centres, rows, fleet.geometry, r.behaviour_id if with_id else None))
+
+    def actuate(self, fleet: Fleet, actions: np.ndarray) -> Actuation:
+        r, f = fleet.rows, fleet.rows.frame
+        assert f is not None
+        return actuate(
+            actions, r.speed, r.angle, f.offset, f.half_width, f.curvature, f.speed_limit,
+            fleet.dt, fleet.car, r.side_limit, r.speed_cap,
+        )  # fmt: skip
+
+
+@dataclass
+class TrafficRows:
+    """The traffic driver's own per-agent rows (taken and extended with the fleet's)."""
+
+    desired_fraction: np.ndarray = field(default_factory=lambda: np.zeros(0))  # of the local speed limit
+    lateral_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
+    lateral_accel: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
+    changing: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # see actuation.lane_intent
+    lane_number: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # -1 = not sensed yet
+    lane_count: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    lane_changed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # at the last sensing
+    lane_ends: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # own/fast/slow, lane coords
+    best_end: np.ndarray = field(default_factory=lambda: np.zeros(0))  # the edge's farthest-leading lane
+    one_lane_at: np.ndarray = field(default_factory=lambda: np.zeros(0))  # route's next 1-lane road
+    around: Surroundings | None = None  # leaders and followers at the last sensing
+    lanes: LaneAgents | None = None  # the agents in their lanes at the last sensing
+
+
+class TrafficDriver:
+    """Lanes among SUMO's traffic (lanes.py): steer chooses a lane, accel and brake adjust a
+    car-following law (actuation.actuate_lanes); SUMO's driver takes the car where the policies
+    never trained (handover.py)."""
+
+    name = "traffic"
+    reward_scale = 0.1
+    """The traffic reward's terms are ~1 per step."""
+    exploration: ClassVar[dict[str, tuple[float, float, float]]] = {
+        "ou_theta": (0.15, 1.0, 1.0),
+        "ou_sigma": (0.2, 0.1, 0.05),
+    }
+    """Steer noise correlated over ~7 steps (theta 0.15, stationary std 0.38), so that exploring
+    asks for a lane long enough to start a change."""
+
+    def __init__(self, lateral: LaneDriving | None = None) -> None:
+        self.lateral = LaneDriving() if lateral is None else lateral
+        self._one_lane_at: dict[tuple[str, int], float] = {}  # (route, index) -> `_one_lane_road_at`
+
+    def obs_size(self, with_id: bool) -> int:
+        return TRAFFIC_OBS_SIZE
+
+    def observation_space(self, with_id: bool) -> spaces.Box:
+        """Every value of the traffic observation (lanes.TRAFFIC_LAYOUT) lies within [-1.5, 1.5]."""
+        return spaces.Box(
+            np.full(TRAFFIC_OBS_SIZE, -1.5, np.float32),
+            np.full(TRAFFIC_OBS_SIZE, 1.5, np.float32),
+            dtype=np.float32,
+        )
+
+    def new_rows(self, count: int, desired_fraction: np.ndarray | None) -> TrafficRows:
+        zeros = np.zeros(count)
+        desired = zeros if desired_fraction is None else np.asarray(desired_fraction, float)
+        return TrafficRows(
+            desired_fraction=desired,
+            lateral_speed=zeros,
+            lateral_accel=zeros,
+            changing=np.zeros(count, np.int64),
+            lane_number=np.full(count, -1, np.int64),
+            lane_count=np.zeros(count, np.int64),
+            lane_changed=np.zeros(count, bool),
+            lane_ends=np.zeros((count, 3)),
+            best_end=zeros,
+            one_lane_at=np.full(count, np.inf),
+            around=None,
+            lanes=None,
+        )
+
+    def observe(self, fleet: Fleet, sim: SumoSim, sensing: Sensing, with_id: bool) -> Observed:
+        """The traffic observation (lanes.py); also keeps what the traffic reward and the actuation
+        need, and decides the hand-overs (sent to SUMO by the fleet after sensing)."""
+        r, g, own = fleet.rows, fleet.geometry, fleet.rows.own
+        vehicles, rows, readings = sensing.vehicles, sensing.rows, sensing.readings
+        radius = max(SEARCH_RADIUS, sensing.reach) if fleet.shield else SEARCH_RADIUS
+        near = neighbours(vehicles.position[rows], vehicles.position, radius, exclude=rows)
+        r.frame = frame = road_frame(
+            g, readings, sensing.lane_rows, vehicles.position[rows], r.angle, fleet.car
+        )
+        number = g.lane_number[frame.lane_row]
+        count = g.lane_num_lanes[frame.lane_row]
+        normal = frame.on_normal_edge
+        own.lane_changed = (
+            (own.lane_number >= 0) & (number != own.lane_number) & (count == own.lane_count) & normal
+        )
+        own.lane_number = np.where(normal, number, own.lane_number)
+        own.lane_count = np.where(normal, count, own.lane_count)
+        speeds = vehicles.speed.copy()  # SUMO's; the agents' own are put in below
+        self._refresh_lane_ends(fleet, sim, readings, sensing.entered)
+        handover = self._hand_over(fleet, sim, readings, count, normal, speeds[rows])
+        agents = LaneAgents(
+            front=vehicles.position[rows],
+            lane_row=frame.lane_row,
+            shape_pos=readings.lane_pos * g.lane_length_scale[frame.lane_row],
+            curvature=frame.curvature,
+            speed=r.speed,
+            lateral_speed=own.lateral_speed,
+            changing=own.changing,
+            desired_speed=own.desired_fraction * frame.speed_limit,
+            speed_limit=frame.speed_limit,
+            lane_offset=readings.lateral_pos,
+            lane_width=g.lane_width[frame.lane_row],
+            lane_number=number,
+            lanes=count,
+            lane_leads_on=lane_leads_on(own.lane_ends, own.best_end, readings.lane_pos),
+            behaviour_id=r.behaviour_id,
+            # SUMO's lane indices and posLat grow towards the fast side in both kinds of net; the
+            # world frame's left is the fast side only in keep-right nets
+            fast_side_sign=-1.0 if g.lefthand else 1.0,
+        )
+        own.lanes = agents
+        speeds[rows] = r.speed
+        own.around = around = lane_surroundings(agents, vehicles.position, speeds, rows, g, near)
+        return Observed(observe_lanes(agents, around), near, handover)
+
+    def _refresh_lane_ends(self, fleet: Fleet, sim: SumoSim, readings: Any, entered: np.ndarray) -> None:
+        """Where the own and neighbouring lanes stop leading on, asked of SUMO only for the agents
+        that `entered` a new lane (a few per step), kept in lane coordinates otherwise."""
+        r, own = fleet.rows, fleet.rows.own
+        for i in entered.tolist():
+            lane = readings.lane_id[i]
+            if lane.startswith(":"):  # a junction leads on to the lane SUMO routes it to
+                own.lane_ends[i] = readings.lane_pos[i] + JUNCTION_LEADS_ON
+                continue
+            ahead = sim.lane_lengths_ahead(r.ids[i])
+            edge, _, index = lane.rpartition("_")
+            k = int(index)
+            own.lane_ends[i] = [ahead.get(f"{edge}_{j}", 0.0) for j in (k, k + 1, k - 1)]
+            own.best_end[i] = max(ahead.values(), default=0.0)
+            place = sim.route_place(r.ids[i])
+            if place not in self._one_lane_at:  # agents on one route share it (a route can be long)
+                self._one_lane_at[place] = self._one_lane_road_at(fleet, edge, sim.route_ahead(r.ids[i]))
+            own.one_lane_at[i] = self._one_lane_at[place]
+
+    @staticmethod
+    def _one_lane_road_at(fleet: Fleet, edge: str, route_ahead: list[str]) -> float:
+        """Metres from the start of `edge` to the first road of the route ahead with fewer than two car
+        lanes (a ramp, a slip road, a street), within ONE_LANE_HORIZON of the end of `edge`; inf if
+        there is none."""
+        edges = fleet.geometry.edges
+        info = edges.get(edge)
+        edge_length = info.length if info is not None else 0.0
+        at = edge_length
+        for following in route_ahead:
+            if at - edge_length > ONE_LANE_HORIZON:
+                break
+            info = edges.get(following)
+            if info is None or info.lanes < 2:
+                return at
+            at += info.length
+        return np.inf
+
+    @staticmethod
+    def _hand_over(
+        fleet: Fleet,
+        sim: SumoSim,
+        readings: Any,
+        lanes: np.ndarray,
+        normal: np.ndarray,
+        sumo_speed: np.ndarray,
+    ):
+        """Decide the hand-overs (handover.py) and update the rows as if they were sent: SUMO's
+        speed for the cars it drives, no sideways motion for those it gives back."""
+        r, own = fleet.rows, fleet.rows.own
+        signal = (
+            sim.signal_ahead(r.ids, np.maximum(SIGNAL_DISTANCE, SIGNAL_SECONDS * r.speed))
+            if sim.has_signals
+            else np.zeros(len(r.ids), bool)  # most motorway nets: no per-agent query at all
+        )
+        assert r.frame is not None
+        half_room = (fleet.geometry.lane_width[r.frame.lane_row] - fleet.car.width) / 2
+        ends = LaneEnds(own.lane_ends, own.best_end, own.one_lane_at)
+        handover = decide(
+            ends, r.handed, r.speed, readings.lane_pos, readings.lateral_pos, own.lane_number, lanes,
+            normal, half_room, signal,
+        )  # fmt: skip
+        if handover.take.any():
+            own.lateral_speed[handover.take] = 0.0
+            r.angle[handover.take] = 0.0
+        r.handed = (r.handed | handover.give) & ~handover.take
+        r.speed = np.where(r.handed, sumo_speed, r.speed)  # SUMO drives them: their speed is SUMO's
+        return handover
+
+    def actuate(self, fleet: Fleet, actions: np.ndarray) -> Actuation:
+        r, f, own = fleet.rows, fleet.rows.frame, fleet.rows.own
+        lanes, around = own.lanes, own.around
+        assert f is not None and lanes is not None and around is not None
+        leaders = [0, 2, 4]  # own, fast-side and slow-side leader (lanes.NEIGHBOUR_SLOTS)
+        command = actuate_lanes(
+            actions, r.speed, lanes.desired_speed, around.gap[:, leaders], around.other_speed[:, leaders],
+            own.lateral_speed, own.lateral_accel, own.changing, lanes.lane_offset, lanes.lane_width,
+            lanes.lanes - 1 - lanes.lane_number, lanes.lane_number, f.offset, f.half_width, f.speed_limit,
+            fleet.dt, fleet.car, self.lateral, r.side_limit, r.speed_cap,
+        )  # fmt: skip
+        # a junction's internal edge holds only the lanes of some connections, not the
+        # carriageway: the move stays clamped to it, but leaving it is not off the road
+        result = replace(command.actuation, off_track=command.actuation.off_track & f.on_normal_edge)
+        assert result.lateral_speed is not None
+        mine = ~r.handed  # SUMO drives the others: no lane change of ours goes on
+        own.changing = np.where(mine, command.changing, 0)
+        own.lateral_accel = np.where(mine, command.lateral_accel, 0.0)
+        own.lateral_speed = np.where(mine, result.lateral_speed, 0.0)
+        return result
+
+
+DRIVERS: dict[str, type[PaperDriver] | type[TrafficDriver]] = {
+    PaperDriver.name: PaperDriver,
+    TrafficDriver.name: TrafficDriver,
+}
+"""Every driver model by name: `--driver NAME`, and the name a checkpoint records."""
+
+
+def make_driver(name: str) -> PaperDriver | TrafficDriver:
+    """A new driver of that name (one per fleet: a driver may cache per road)."""
+    if name not in DRIVERS:
+        raise BehaveError(f"unknown driver '{name}' (choose from {', '.join(DRIVERS)})")
+    return DRIVERS[name]()
+
+
+def driver_of_obs_size(obs_dim: int) -> tuple[str, bool]:
+    """The driver a policy of `obs_dim` inputs was trained for, and whether it takes the behaviour id;
+    for checkpoints that do not name their driver."""
+    for name, kind in DRIVERS.items():
+        for with_id in (False, True):
+            if kind().obs_size(with_id) == obs_dim:
+                return name, with_id and kind().obs_size(False) != obs_dim
+    sizes = sorted({kind().obs_size(w) for kind in DRIVERS.values() for w in (False, True)})
+    raise BehaveError(f"no driver takes {obs_dim} observations (behave policies take {sizes})")
