@@ -170,7 +170,7 @@ class LaneDriving:
     Steer chooses where in the road to be: within `change_threshold` of 0 the centre of the
     own lane, beyond it the centre of the neighbour lane on that side. A lane change, once
     begun, is a commitment: it goes on until the car is in the new lane, and ends early only
-    when the policy steers the other way past the threshold or the shield blocks it. The car
+    when the shield blocks it or the lane ends (then the car returns to its lane's centre). The car
     moves towards its target at a lateral speed that rises and falls within human comfort
     (a 3.5 m change takes about 4.6 s with a peak lateral acceleration of 0.8 m/s^2, where
     recorded drivers take 5-6 s at 0.5-1 m/s^2), so steer 0 centres the car and holds it there.
@@ -201,7 +201,9 @@ def lane_intent(
     lateral: LaneDriving,
 ) -> np.ndarray:
     """[N] int: the lane each agent heads for, relative to its own (+1 the fast side, -1 the slow
-    side, 0 its own), given `changing`, the same at the last step.
+    side, 0 its own), given `changing`, the same at the last step. A change under way goes on
+    whatever the steer: a policy that could call changes off learnt to start one and call it off
+    at the next step, for ever, riding beside the line.
 
     A change is over once the car's centre is `arrived` lane widths on the far side of its new
     lane's centre line, which is where SUMO puts it right after it crossed the line (its offset
@@ -210,7 +212,7 @@ def lane_intent(
     wish = np.where(steer > lateral.change_threshold, 1, np.where(steer < -lateral.change_threshold, -1, 0))
     crossed = changing * lane_offset < -lateral.arrived * lane_width
     vanished = np.where(changing > 0, lanes_fast == 0, np.where(changing < 0, lanes_slow == 0, False))
-    going = np.where(crossed | vanished | (wish == -changing), 0, changing)
+    going = np.where(crossed | vanished, 0, changing)
     room = np.where(wish > 0, lanes_fast > 0, lanes_slow > 0)
     return np.where((changing == 0) & (wish != 0) & room, wish, going)
 
