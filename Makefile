@@ -8,7 +8,7 @@ PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 WORKERS ?= 1
 
-.PHONY: setup run test typecheck lint bench learn-check pretrained paper realism own-nets clean
+.PHONY: setup run test typecheck lint bench learn-check pretrained paper realism own-nets dense clean
 
 setup: $(STAMP)
 
@@ -50,6 +50,9 @@ realism: $(STAMP)
 
 own-nets: $(STAMP)
 	$(BIN)/python benchmarks/own_nets_bars.py --seeds 0,1
+
+dense: $(STAMP)
+	$(BIN)/python benchmarks/dense_bars.py --seed $(SEED)
 
 paper: $(STAMP)
 	$(BIN)/python benchmarks/paper.py --seed $(SEED)

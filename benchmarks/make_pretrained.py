@@ -47,9 +47,9 @@ def train_command(
 
 TRAFFIC_ARGS = ["multi", "--driver", "traffic", "--scenario", "roads", "--overtakers", "4",
                 "--keepers", "4", "--max-steps", "500", "--updates-per-step", "2",
-                "--explore-decay-steps", "40000"]  # fmt: skip
+                "--explore-decay-steps", "30000"]  # fmt: skip
 """The traffic policy's run: 100 s episodes, two updates per step (not one per agent: the
-wall-clock budget buys more experience), exploration decaying over 40,000 steps."""
+wall-clock budget buys more experience), exploration decaying over 30,000 steps."""
 TRAFFIC_EVAL = EnvConfig(scenario="roads", driver="traffic", behaviour="multi", overtakers=4, keepers=4,
                          max_steps=500)  # fmt: skip
 
@@ -175,7 +175,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--runs", type=Path, default=Path("runs/pretrained"))
     parser.add_argument(
-        "--minutes", default="8,12,20,60", help="budgets: lanekeeping,overtaking,multi,traffic"
+        "--minutes", default="8,12,20,80", help="budgets: lanekeeping,overtaking,multi,traffic"
     )
     parser.add_argument("--stages", default="paper,traffic", help="paper, traffic or both")
     parser.add_argument("--eval-episodes", type=int, default=5)
