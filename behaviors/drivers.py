@@ -57,6 +57,8 @@ class PaperDriver:
     heading model: steer turns a heading of the car's own (actuation.actuate)."""
 
     name = "paper"
+    among_traffic = False
+    """Trains in the paper's formations on the bundled roads (env.BehaveEnv), not among SUMO's traffic."""
     reward_scale = 0.01
     """The paper's rewards are ~100 per step (km/h): the critic sees them scaled by this."""
     exploration: ClassVar[dict[str, tuple[float, float, float]]] = {}
@@ -126,6 +128,8 @@ class TrafficDriver:
     never trained (handover.py)."""
 
     name = "traffic"
+    among_traffic = True
+    """Trains among SUMO's traffic on the family of training roads (traffic_env.TrafficEnv)."""
     reward_scale = 0.1
     """The traffic reward's terms are ~1 per step."""
     exploration: ClassVar[dict[str, tuple[float, float, float]]] = {

@@ -83,9 +83,9 @@ class EnvConfig:
             raise BehaveError(f"unknown placement '{self.placement}' (choose from {', '.join(PLACEMENTS)})")
         if self.driver not in DRIVERS:
             raise BehaveError(f"unknown driver '{self.driver}' (choose from {', '.join(DRIVERS)})")
-        if self.driver == "traffic" and self.scenario not in (*ROAD_FAMILIES, "ring"):
+        if make_driver(self.driver).among_traffic and self.scenario not in (*ROAD_FAMILIES, "ring"):
             raise BehaveError(
-                f"the traffic driver trains on {', '.join(repr(f) for f in ROAD_FAMILIES)} or 'ring'"
+                f"the {self.driver} driver trains on {', '.join(repr(f) for f in ROAD_FAMILIES)} or 'ring'"
             )
         if isinstance(self.scenario, str) and self.scenario not in (*SCENARIO_NAMES, *ROAD_FAMILIES):
             get_scenario(self.scenario)  # raises with the list of choices
@@ -587,8 +587,9 @@ def make_env(
 
 
 def create_env(config: EnvConfig, render_mode: str | None = None) -> BehaveEnv:
-    """The environment a config describes: the paper's scenarios, or agents among traffic."""
-    if config.driver == "traffic":
+    """The environment a config describes: the paper's scenarios, or agents among traffic for the
+    drivers that train there."""
+    if make_driver(config.driver).among_traffic:
         from behaviors.traffic_env import TrafficEnv
 
         env = TrafficEnv(config)
