@@ -188,7 +188,32 @@ class LaneDriving:
     max_slip: float = 0.25  # lateral speed at most this fraction of the forward speed
     arrived: float = 0.35  # lane widths past the new lane's centre line: the change is over
     accel_span: float = 1.5  # m/s^2
+    safe_decel: float = 3.0  # m/s^2: a change may ask no harder braking of the car or its new follower
     following: CarFollowing = CarFollowing()
+
+
+def gap_acceptable(
+    speed: np.ndarray,
+    desired_speed: np.ndarray,
+    gap: np.ndarray,
+    other_speed: np.ndarray,
+    lateral: LaneDriving,
+) -> np.ndarray:
+    """[N, 2] bool: whether the fast-side (column 0) and slow-side (column 1) lane have room to
+    change into, as a driver checks it: nobody alongside, and neither the new leader nor the new
+    follower would make the car or its follower brake harder than `safe_decel` (the safety
+    criterion of MOBIL, Kesting, Treiber and Helbing 2007). `gap`/`other_speed` [N, 6] in
+    lanes.NEIGHBOUR_SLOTS order (gap 0: alongside, or no lane)."""
+    law, out = lateral.following, np.zeros((len(speed), 2), bool)
+    for side, (lead, follow) in enumerate(((2, 3), (4, 5))):
+        own = following_accel(speed, desired_speed, gap[:, lead], other_speed[:, lead], law)
+        behind = np.nan_to_num(other_speed[:, follow])
+        theirs = np.where(
+            np.isfinite(gap[:, follow]), following_accel(behind, behind, gap[:, follow], speed, law), 0.0
+        )
+        out[:, side] = (gap[:, lead] > 0) & (gap[:, follow] > 0) & (own >= -lateral.safe_decel)
+        out[:, side] &= theirs >= -lateral.safe_decel
+    return out
 
 
 def lane_intent(
@@ -198,12 +223,14 @@ def lane_intent(
     lane_width: np.ndarray,
     lanes_fast: np.ndarray,
     lanes_slow: np.ndarray,
+    acceptable: np.ndarray,
     lateral: LaneDriving,
 ) -> np.ndarray:
     """[N] int: the lane each agent heads for, relative to its own (+1 the fast side, -1 the slow
-    side, 0 its own), given `changing`, the same at the last step. A change under way goes on
-    whatever the steer: a policy that could call changes off learnt to start one and call it off
-    at the next step, for ever, riding beside the line.
+    side, 0 its own), given `changing`, the same at the last step. A change begins only where
+    that side's lane exists and its gap is `acceptable` ([N, 2]: fast, slow; `gap_acceptable`);
+    until then the wish waits. A change under way goes on whatever the steer: a policy that could
+    call changes off learnt to start one and call it off at the next step, riding beside the line.
 
     A change is over once the car's centre is `arrived` lane widths on the far side of its new
     lane's centre line, which is where SUMO puts it right after it crossed the line (its offset
@@ -213,7 +240,7 @@ def lane_intent(
     crossed = changing * lane_offset < -lateral.arrived * lane_width
     vanished = np.where(changing > 0, lanes_fast == 0, np.where(changing < 0, lanes_slow == 0, False))
     going = np.where(crossed | vanished, 0, changing)
-    room = np.where(wish > 0, lanes_fast > 0, lanes_slow > 0)
+    room = np.where(wish > 0, (lanes_fast > 0) & acceptable[:, 0], (lanes_slow > 0) & acceptable[:, 1])
     return np.where((changing == 0) & (wish != 0) & room, wish, going)
 
 
@@ -255,8 +282,8 @@ def actuate_lanes(
     actions: np.ndarray,
     speed: np.ndarray,
     desired_speed: np.ndarray,
-    lead_gap: np.ndarray,
-    lead_speed: np.ndarray,
+    gap: np.ndarray,
+    other_speed: np.ndarray,
     lateral_speed: np.ndarray,
     lateral_accel: np.ndarray,
     changing: np.ndarray,
@@ -277,21 +304,24 @@ def actuate_lanes(
 
     Everything sideways is signed as SUMO's lane indices and `changeSublane` are: + towards
     the fast side (the left in keep-right nets, the right in left-hand ones, which SUMO
-    mirrors); `offset` and `half_width` are the carriageway's. `lead_gap`/`lead_speed` [N, 3]:
-    the leaders in the own, fast-side and slow-side lane (gap +inf where none). `angle` in
+    mirrors); `offset` and `half_width` are the carriageway's. `gap`/`other_speed` [N, 6]: the
+    neighbours in lanes.NEIGHBOUR_SLOTS order (gap +inf where none, 0 alongside or no lane). `angle` in
     the result is atan(lateral speed / speed). A car that heads for a neighbour lane also
     follows that lane's leader, as a driver who moves over does.
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
-    heading = lane_intent(steer, changing, lane_offset, lane_width, lanes_fast, lanes_slow, lateral)
+    acceptable = gap_acceptable(speed, desired_speed, gap, other_speed, lateral)
+    heading = lane_intent(
+        steer, changing, lane_offset, lane_width, lanes_fast, lanes_slow, acceptable, lateral
+    )
     rows = np.arange(len(steer))
-    target_column = np.where(heading > 0, 1, np.where(heading < 0, 2, 0))
-    follow = following_accel(speed, desired_speed, lead_gap[:, 0], lead_speed[:, 0], lateral.following)
+    target_column = np.where(heading > 0, 2, np.where(heading < 0, 4, 0))  # the leader there
+    follow = following_accel(speed, desired_speed, gap[:, 0], other_speed[:, 0], lateral.following)
     into = following_accel(
         speed,
         desired_speed,
-        lead_gap[rows, target_column],
-        lead_speed[rows, target_column],
+        gap[rows, target_column],
+        other_speed[rows, target_column],
         lateral.following,
     )
     accel = np.clip(actions[:, 1], 0.0, 1.0)

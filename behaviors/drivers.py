@@ -290,9 +290,8 @@ class TrafficDriver:
         r, f, own = fleet.rows, fleet.rows.frame, fleet.rows.own
         lanes, around = own.lanes, own.around
         assert f is not None and lanes is not None and around is not None
-        leaders = [0, 2, 4]  # own, fast-side and slow-side leader (lanes.NEIGHBOUR_SLOTS)
         command = actuate_lanes(
-            actions, r.speed, lanes.desired_speed, around.gap[:, leaders], around.other_speed[:, leaders],
+            actions, r.speed, lanes.desired_speed, around.gap, around.other_speed,
             own.lateral_speed, own.lateral_accel, own.changing, lanes.lane_offset, lanes.lane_width,
             lanes.lanes - 1 - lanes.lane_number, lanes.lane_number, f.offset, f.half_width, f.speed_limit,
             fleet.dt, fleet.car, self.lateral, r.side_limit, r.speed_cap,

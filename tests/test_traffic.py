@@ -11,7 +11,14 @@ import numpy as np
 import pytest
 
 from behaviors import traffic_env
-from behaviors.actuation import CarFollowing, CarModel, LaneDriving, actuate_lanes, following_accel
+from behaviors.actuation import (
+    CarFollowing,
+    CarModel,
+    LaneDriving,
+    actuate_lanes,
+    following_accel,
+    gap_acceptable,
+)
 from behaviors.control import Fleet
 from behaviors.drivers import make_driver
 from behaviors.env import make_env
@@ -239,7 +246,7 @@ def test_neighbours_beyond_the_end_of_a_curved_lane_stay_in_their_lanes():
     assert around.gap[0, 4] == pytest.approx(expected, abs=1.5)  # the outer lane is lane 0 here
 
 
-NO_LEADERS = (np.full((1, 3), np.inf), np.full((1, 3), np.nan))
+NO_LEADERS = (np.full((1, 6), np.inf), np.full((1, 6), np.nan))
 
 
 def drive_lanes(steers, speed=30.0, lane_offset=0.0, lanes=3, lane=1, width=3.5, dt=0.2, leaders=NO_LEADERS):
@@ -286,6 +293,24 @@ def test_steer_zero_centres_the_car_and_a_change_once_begun_goes_on():
     assert np.abs(centring[:, 1]).max() <= 0.8 + 1e-9  # no overshoot across the centre line's far side
     committed = drive_lanes([1.0] + [-1.0] * 10 + [0.0] * 40)  # steering back does not call it off
     assert committed[-1, 0] == 2 and abs(committed[-1, 1]) < 0.02
+
+
+def test_a_change_waits_for_a_gap_a_driver_would_take():
+    lateral = LaneDriving()
+    speed, desired = np.full(4, 30.0), np.full(4, 30.0)
+    gap, other = np.full((4, 6), np.inf), np.full((4, 6), np.nan)
+    gap[1, 2:4] = 0.0  # a car alongside in the fast lane
+    gap[2, 3], other[2, 3] = 8.0, 40.0  # a fast car 8 m behind in the fast lane, 10 m/s faster
+    gap[3, 2], other[3, 2] = 60.0, 28.0  # the fast lane's leader 60 m ahead, a little slower
+    fast_ok = gap_acceptable(speed, desired, gap, other, lateral)[:, 0]
+    assert fast_ok.tolist() == [True, False, False, True]
+    car = CarModel()
+    waiting = actuate_lanes(
+        np.array([[1.0, 0.5, 0.0]]), speed[:1], desired[:1], gap[1:2], other[1:2], np.zeros(1), np.zeros(1),
+        np.array([0]), np.zeros(1), np.array([3.5]), np.array([1]), np.array([1]), np.zeros(1),
+        np.array([5.25]), np.array([33.3]), 0.2, car, lateral,
+    )  # fmt: skip
+    assert waiting.changing[0] == 0 and waiting.actuation.lateral_move[0] == 0.0
 
 
 def test_no_lane_change_towards_a_side_without_a_lane():
