@@ -16,15 +16,24 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import torch
 
-from behaviors.ddpg.checkpoint import load_actor, load_checkpoint
-from behaviors.ddpg.networks import Actor, driving_function
-from behaviors.env import BEHAVIOURS, KEEPER_TYPE, OVERTAKER_TYPE, BehaveEnv, EnvConfig, StepBatch, create_env
+from behaviors.drivers import make_driver
+from behaviors.env import (
+    BEHAVIOURS,
+    KEEPER_TYPE,
+    OVERTAKER_TYPE,
+    ROAD_FAMILIES,
+    TRAINING_ROADS,
+    BehaveEnv,
+    EnvConfig,
+    StepBatch,
+    create_env,
+)
 from behaviors.errors import BehaveError
 from behaviors.export import fcd_options, read_fcd
 from behaviors.files import atomic_write_bytes, atomic_write_text, ensure_writable_dir, temp_dir
 from behaviors.metrics import EpisodeStats, mean_rows, passed_fraction, summary
+from behaviors.policy import Act, Policy, load_policy
 from behaviors.populate import STANDSTILL_SPEED
 from behaviors.realism import (
     SKIP_S,
@@ -37,51 +46,12 @@ from behaviors.realism import (
     stack_runs,
 )
 from behaviors.realism import write_report as write_realism
-from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID
 from behaviors.train import episode_seed
 from sumo_scenarios import Scenario, get_scenario
 
-Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
-"""(observations [n, D], agent slots [n]) -> actions [n, 3]."""
-
-
-def actor_policy(actor: Actor) -> Policy:
-    """The whole fleet through one batched forward pass."""
-
-    drive = driving_function(actor)
-
-    def act(obs: np.ndarray, slots: np.ndarray) -> np.ndarray:
-        return drive(np.asarray(obs, np.float32))
-
-    return act
-
-
-def checkpoint_policy(path: Path, obs_dim: int) -> Policy:
-    """A shared policy, or for multi-DDPG checkpoints each agent slot its own actor (slot mod count)."""
-    ckpt = load_checkpoint(path, expect_obs_dim=obs_dim)
-    actors_state = (ckpt.extra_state or {}).get("actors")
-    if ckpt.meta["algorithm"] != "multi-ddpg" or not actors_state:
-        return actor_policy(load_actor(path, expect_obs_dim=obs_dim))
-    actors = []
-    for state in actors_state:
-        actor = Actor(obs_dim, ckpt.meta["hidden"])
-        actor.load_state_dict(state)
-        actors.append(actor.eval())
-
-    def act(obs: np.ndarray, slots: np.ndarray) -> np.ndarray:
-        out = np.empty((len(obs), 3), np.float32)
-        owner = slots % len(actors)
-        with torch.inference_mode():
-            for k in np.unique(owner):
-                rows = owner == k
-                out[rows] = actors[k](torch.as_tensor(obs[rows])).numpy()
-        return out
-
-    return act
-
 
 def evaluate(
-    config: EnvConfig, policy: Policy, episodes: int, seed: int, record: Path | None = None
+    config: EnvConfig, policy: Act, episodes: int, seed: int, record: Path | None = None
 ) -> list[dict[str, Any]]:
     """`episodes` rows of `summary`, each from a fresh, seeded episode.
 
@@ -89,7 +59,6 @@ def evaluate(
     agents' ends beside it (`<stem>.agents.csv`, as populate's): what `behave report` reads.
     """
     env = create_env(config)
-    limit = max(info.speed for info in env.geometry.edges.values() if info.normal)
     rows = []
     try:
         for episode in range(episodes):
@@ -97,6 +66,7 @@ def evaluate(
             if fcd is not None:
                 env.sim_extra = tuple(fcd_options(fcd, geo=False))
             obs = env.reset_arrays(episode_seed(seed, 1_000_000 + episode))
+            limit = max(info.speed for info in env.geometry.edges.values() if info.normal)  # this road's
             stats = EpisodeStats(config.n_agents, env.slot_behaviour.copy())
             ends = None if fcd is None else AgentEnds(env)
             while env.agents:
@@ -171,11 +141,16 @@ PAPER_METRICS = (
 BASELINE = "sumo"
 
 
+MULTI_AGENTS = (4, 4)
+"""Overtakers and keepers of a multi-behaviour evaluation when neither is given: as the bundled
+multi-behaviour policies trained."""
+
+
 @dataclass(frozen=True)
 class EvaluationPlan:
     """Which policies to run in which settings; `settings` are (label, EnvConfig) pairs."""
 
-    policies: list[tuple[str, Path | None]]  # (label, checkpoint); None = SUMO's own drivers
+    policies: list[tuple[str, Policy | None]]  # (label, policy); None = SUMO's own drivers
     settings: list[tuple[str, EnvConfig]]
     episodes: int
     seed: int
@@ -190,15 +165,18 @@ def plan_evaluation(
     overtakers: int,
     keepers: int,
     placements: list[str] | None,
-    scenario: str,
+    scenario: str | None,
     seed: int,
     max_steps: int,
     baseline: str | None,
     opponents: int | None = None,
     shield: bool = False,
 ) -> EvaluationPlan:
-    """Check every option against the checkpoints before anything runs; BehaveError names the problem.
+    """Check every option against the policies before anything runs; BehaveError names the problem.
 
+    `checkpoints`: anything policy.load_policy takes (files, run directories, bundled names); their
+    driver model sets the environment, and their behaviour the settings unless `behaviour` is given.
+    `scenario`: None = where the driver trains (the paper's ring, the traffic driver's roads).
     `opponents`: slower passive cars ahead (see EnvConfig); `shield`: drive through populate's
     safety shield, to see a policy as `behave populate` drives it.
     """
@@ -208,40 +186,87 @@ def plan_evaluation(
         raise BehaveError(f"unknown baseline '{baseline}' (the only one is '{BASELINE}')")
     if episodes < 1:
         raise BehaveError(f"episodes must be positive, got {episodes}")
-    metas = [load_checkpoint(path).meta for path in checkpoints]
-    behaviour = behaviour or (metas[0].get("behaviour") if metas else None) or "lanekeeping"
+    policies = [load_policy(path) for path in checkpoints]
+    driver = common_driver(policies)
+    behaviour = behaviour or (policies[0].behaviour if policies else "lanekeeping")
     if behaviour not in BEHAVIOURS:
         raise BehaveError(f"unknown behaviour '{behaviour}' (choose from {', '.join(BEHAVIOURS)})")
-    size = OBS_SIZE_WITH_ID if behaviour == "multi" else OBS_SIZE
-    for path, meta in zip(checkpoints, metas, strict=True):
-        if meta["obs_dim"] != size:
-            raise BehaveError(f"{path} takes {meta['obs_dim']} observations but {behaviour} gives {size}")
+    size = make_driver(driver).obs_size(behaviour == "multi")
+    for policy in policies:
+        if policy.obs_dim != size:
+            raise BehaveError(
+                f"{policy.path} takes {policy.obs_dim} observations but {behaviour} gives {size}"
+            )
+    among_traffic = make_driver(driver).among_traffic
+    if among_traffic:
+        refuse_paper_options(driver, baseline, placements, opponents)
+    home = TRAINING_ROADS if among_traffic else "ring"
+    base = EnvConfig(scenario=scenario or home, driver=driver, behaviour=behaviour, max_steps=max_steps,
+                     opponents=opponents, shield=shield)  # fmt: skip
     if behaviour == "multi":
-        if overtakers + keepers == 0:
-            raise BehaveError("multi-behaviour evaluation needs --overtakers and --keepers")
-        placements = placements or ["A", "B", "C"]
-        settings = [
-            (f"case {p}", EnvConfig(scenario=scenario, behaviour="multi", overtakers=overtakers,
-                                   keepers=keepers, placement=p, max_steps=max_steps, opponents=opponents,
-                                   shield=shield))
-            for p in placements
-        ]  # fmt: skip
+        settings = multi_settings(
+            base, overtakers, keepers, None if among_traffic else placements or ["A", "B", "C"]
+        )
     else:
-        if placements:
-            raise BehaveError(f"--placement applies to multi-behaviour policies, not {behaviour}")
-        if not agents:
-            raise BehaveError("the agent list is empty: give e.g. --agents 3,5,7")
-        settings = [
-            (f"{n} agents", EnvConfig(scenario=scenario, behaviour=behaviour, agents=n, max_steps=max_steps,
-                                      opponents=opponents, shield=shield))
-            for n in agents
-        ]  # fmt: skip
+        settings = agent_settings(base, agents, placements)
     for _, config in settings:
         create_env(config).close()  # validates scenario, counts and capacity before any long run
-    policies: list[tuple[str, Path | None]] = [(path.stem, path) for path in checkpoints]
+    runs: list[tuple[str, Policy | None]] = [(policy.label, policy) for policy in policies]
     if baseline:
-        policies.append((f"{BASELINE} (Krauss + SL2015)", None))
-    return EvaluationPlan(policies, settings, episodes, seed)
+        runs.append((f"{BASELINE} (Krauss + SL2015)", None))
+    return EvaluationPlan(runs, settings, episodes, seed)
+
+
+def common_driver(policies: list[Policy]) -> str:
+    """The one driver model all the policies drive (the paper's for none: the SUMO baseline)."""
+    drivers = sorted({policy.driver for policy in policies})
+    if len(drivers) > 1:
+        raise BehaveError(
+            f"the policies drive different driver models ({', '.join(drivers)}): evaluate apart"
+        )
+    return drivers[0] if drivers else "paper"
+
+
+def refuse_paper_options(
+    driver: str, baseline: str | None, placements: list[str] | None, opponents: int | None
+) -> None:
+    """Options of the paper's formations that a driver among SUMO's traffic has no use for."""
+    given = [name for name, value in (("--baseline", baseline), ("--placement", placements),
+                                      ("--opponents", opponents)) if value is not None]  # fmt: skip
+    if given:
+        raise BehaveError(
+            f"{' and '.join(given)} set the paper's formations; the {driver} driver's agents start at free "
+            "places among SUMO's traffic"
+        )
+
+
+def multi_settings(
+    base: EnvConfig, overtakers: int, keepers: int, placements: list[str] | None
+) -> list[tuple[str, EnvConfig]]:
+    """One setting per placement (the paper's cases), or one (None: agents among traffic)."""
+    if overtakers + keepers == 0:
+        overtakers, keepers = MULTI_AGENTS
+    config = dataclasses.replace(base, overtakers=overtakers, keepers=keepers)
+    if placements is None:
+        return [(f"{overtakers} overtakers + {keepers} keepers", config)]
+    return [(f"case {p}", dataclasses.replace(config, placement=p)) for p in placements]
+
+
+def agent_settings(
+    base: EnvConfig, agents: list[int], placements: list[str] | None
+) -> list[tuple[str, EnvConfig]]:
+    """One setting per agent count (single-behaviour policies)."""
+    if placements:
+        raise BehaveError(f"--placement applies to multi-behaviour policies, not {base.behaviour}")
+    if not agents:
+        raise BehaveError("the agent list is empty: give e.g. --agents 3,5,7")
+    return [(f"{n} agents", dataclasses.replace(base, agents=n)) for n in agents]
+
+
+def measurable_net(config: EnvConfig) -> bool:
+    """Whether every episode runs on one net, which the realism report reads its lanes from (a family
+    of training roads mixes nets whose lane ids clash)."""
+    return config.scenario not in ROAD_FAMILIES
 
 
 def run_plan(
@@ -263,24 +288,24 @@ def run_plan(
         ensure_writable_dir(realism)
         record = temp_dir(realism / "fcd")
     try:
-        for label, path in plan.policies:
+        for label, policy in plan.policies:
             for setting, config in plan.settings:
                 if on_setting:
                     on_setting(label, setting)
-                if path is None:
+                if policy is None:
                     env_config = dataclasses.replace(config, sumo_drives=True)
-                    policy: Policy = lambda obs, slots: np.zeros((len(obs), 3), np.float32)  # noqa: E731
+                    act: Act = lambda obs, slots: np.zeros((len(obs), 3), np.float32)  # noqa: E731
                 else:
-                    env_config = config
-                    policy = checkpoint_policy(path, config.obs_size)
-                episodes = evaluate(env_config, policy, plan.episodes, plan.seed, record=record)
+                    env_config, act = config, policy.act
+                fcd = record if measurable_net(config) else None
+                episodes = evaluate(env_config, act, plan.episodes, plan.seed, record=fcd)
                 mean = mean_rows(episodes)
                 if "passed_frac" in mean:
                     mean["overtakes_per_agent"] = mean["passed_frac"] * config.n_opponents
                 rows.append({"policy": label, "setting": setting, "agents": config.n_agents,
                              "episodes": plan.episodes, **mean})  # fmt: skip
-                if record is not None and realism is not None:
-                    realism_rows += realism_of_setting(record, plan.episodes, config, realism, label, setting,
+                if realism is not None:
+                    realism_rows += realism_of_setting(fcd, plan.episodes, config, realism, label, setting,
                                                        picture=pictures)  # fmt: skip
     finally:
         if record is not None:
@@ -289,10 +314,20 @@ def run_plan(
 
 
 def realism_of_setting(
-    record: Path, episodes: int, config: EnvConfig, realism: Path, policy: str, setting: str, *, picture: bool
+    record: Path | None,
+    episodes: int,
+    config: EnvConfig,
+    realism: Path,
+    policy: str,
+    setting: str,
+    *,
+    picture: bool,
 ) -> list[dict[str, Any]]:
-    """Measure the recorded episodes, write their report to realism/<policy>/<setting>/ and return
-    its main rows; if every car left before the seconds the report skips, one row that says so."""
+    """Measure the recorded episodes (None: not recorded, see measurable_net), write their report to
+    realism/<policy>/<setting>/ and return its main rows; if there is nothing to measure, one row
+    that says why."""
+    if record is None:
+        return [{"policy": policy, "setting": setting, "group": f"none: {config.scenario} mixes nets"}]
     try:
         report = measure_episodes(record, episodes, scenario_net(config))
     except NothingToMeasure:

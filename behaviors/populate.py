@@ -25,7 +25,6 @@ Design choices (see README, "Populate"):
 from __future__ import annotations
 
 import contextlib
-import copy
 import csv
 import functools
 import io
@@ -40,17 +39,14 @@ import torch
 
 from behaviors.actuation import CarModel
 from behaviors.control import Fleet
-from behaviors.ddpg.checkpoint import load_actor, load_checkpoint
-from behaviors.ddpg.networks import driving_function
 from behaviors.drivers import make_driver
 from behaviors.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.errors import BehaveError
 from behaviors.export import FCD_SUFFIXES, fcd_options, require_projection, seal_fcd
 from behaviors.files import atomic_write_text, check_output_path, temp_path
 from behaviors.geometry import CAR_CLASS, RoadGeometry, load_geometry
-from behaviors.lanes import TRAFFIC_OBS_SIZE
+from behaviors.policy import PRETRAINED, Policy, load_policy
 from behaviors.scenario_config import LATERAL_RESOLUTION, ScenarioConfig, read_sumocfg, share_draw
-from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID
 from behaviors.sim import SimOptions, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
 from behaviors.traffic_env import desired_fractions
@@ -59,7 +55,6 @@ from sumo_scenarios import get_scenario
 BACKGROUND_TYPE = "behave_background"
 CAR_FOOTPRINT = 15.0
 """Metres of lane one car needs (length + gaps at speed) when checking what a net can hold."""
-PRETRAINED = Path(__file__).parent / "pretrained"
 DEFAULT_POLICY = PRETRAINED / "traffic.pt"
 
 
@@ -366,15 +361,14 @@ class Population:
     def __init__(self, config: PopulateConfig, on_status: Callable[[str], None] | None = None) -> None:
         self.config = config
         self.scenario: ScenarioConfig | None = read_sumocfg(config.sumocfg) if config.sumocfg else None
-        self.policy, self.with_id, driver = load_policy(config)  # a wrong policy is found before set-up
+        self.policy = populate_policy(config)  # a wrong policy is found before set-up
         self.geometry = load_geometry(config.net, cache=True, on_status=on_status)
         self.graph = route_graph(self.geometry)
         self._check_capacity()
         self.rng = np.random.default_rng(config.seed)
         self.timer = PhaseTimer()
-        self.fleet = Fleet(
-            self.geometry, CarModel(), config.step_length, self.timer, make_driver(driver), config.shield
-        )
+        driver = make_driver(self.policy.driver)
+        self.fleet = Fleet(self.geometry, CarModel(), config.step_length, self.timer, driver, config.shield)
         self.summary = PopulateSummary()
         self.log = AgentLog(config.step_length)
         self.routes: RoutePool | None = None  # made with the simulation it hands routes to
@@ -459,9 +453,9 @@ class Population:
         off_track = np.zeros(len(fleet), bool)
         if len(fleet):
             assert self.vehicles is not None
-            obs = fleet.sense(sim, self.vehicles, self.with_id)
+            obs = fleet.sense(sim, self.vehicles, self.policy.with_id)
             with self.timer.phase("policy"):
-                actions = self.policy(obs)
+                actions = self.policy.act(obs, None)
             actuation = fleet.act(sim, actions)
             off_track = actuation.off_track
             self.summary.side_cuts += int(actuation.side_cut.sum())
@@ -595,49 +589,36 @@ POLICY_THREADS = 2
 time), so a second thread halves it where a second core exists (1,000 agents: 1.6 -> 0.8 ms)."""
 
 
-def load_policy(config: PopulateConfig) -> tuple[Callable[[np.ndarray], np.ndarray], bool, str]:
-    """The actor as a batched function, whether it wants the behaviour id (66 inputs), and its
-    driver model ("paper" for 65/66 TORCS inputs, "traffic" for the lane observation)."""
-    if not config.policy.is_file():
-        if config.policy == DEFAULT_POLICY:
-            raise BehaveError(f"the bundled policy is missing ({DEFAULT_POLICY}); run `make pretrained`")
-        raise BehaveError(f"checkpoint not found: {config.policy}")
-    meta = load_checkpoint(config.policy).meta
-    obs_dim = int(meta["obs_dim"])
-    behaviour = meta.get("behaviour", "multi" if obs_dim == OBS_SIZE_WITH_ID else "lanekeeping")
-    if obs_dim not in (OBS_SIZE, OBS_SIZE_WITH_ID, TRAFFIC_OBS_SIZE):
-        raise BehaveError(
-            f"{config.policy} expects {obs_dim} observations; behave policies take "
-            f"65, 66 or {TRAFFIC_OBS_SIZE}"
-        )
+def populate_policy(config: PopulateConfig) -> Policy:
+    """The configured policy (policy.load_policy, in config.precision), checked against the agents
+    it must drive before anything is set up."""
+    half = None if config.precision == "float32" else functools.partial(use_bfloat16, config.precision)
+    policy = load_policy(config.policy, half=half)
+    check_fits(config, policy)
+    return policy
+
+
+def check_fits(config: PopulateConfig, policy: Policy) -> None:
+    """BehaveError if the policy cannot drive the agents asked for: a paper policy drives only its
+    behaviours, and only on the multi-lane roads behave routes its own cars on."""
     keepers, overtakers = config.share_kinds
     keepers, overtakers = keepers or config.keepers > 0, overtakers or config.overtakers > 0
-    if obs_dim != TRAFFIC_OBS_SIZE and config.share > 0:
+    if policy.driver == "paper" and config.share > 0:
         raise BehaveError(
-            f"{config.policy} drives the paper's TORCS model, which cannot leave multi-lane roads: "
-            f"--share needs a traffic-driver policy ({TRAFFIC_OBS_SIZE} inputs)"
+            f"{policy.path} drives the paper's TORCS model, which cannot leave multi-lane roads: "
+            "--share needs a traffic-driver policy"
         )
-    if obs_dim == OBS_SIZE and overtakers and keepers:
+    if policy.behaviour == "multi":
+        return
+    if overtakers and keepers:
         raise BehaveError(
-            f"{config.policy} is a {behaviour} policy: it cannot drive both keepers and overtakers "
+            f"{policy.path} is a {policy.behaviour} policy: it cannot drive both keepers and overtakers "
             "(use a multi-behaviour policy)"
         )
-    if obs_dim == OBS_SIZE and behaviour == "lanekeeping" and overtakers:
-        raise BehaveError(f"{config.policy} is a lanekeeping policy: use --keepers, not --overtakers")
-    if obs_dim == OBS_SIZE and behaviour == "overtaking" and keepers:
-        raise BehaveError(f"{config.policy} is an overtaking policy: use --overtakers, not --keepers")
-    actor = load_actor(config.policy)
-    half = None if config.precision == "float32" else copy.deepcopy(actor).to(torch.bfloat16)
-    drive = driving_function(actor)
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        if half is not None and use_bfloat16(config.precision, len(obs)):
-            with torch.inference_mode():
-                return half(torch.from_numpy(obs).to(torch.bfloat16)).float().numpy()
-        return drive(obs)
-
-    driver = "traffic" if obs_dim == TRAFFIC_OBS_SIZE else "paper"
-    return act, obs_dim != OBS_SIZE, driver
+    if policy.behaviour == "lanekeeping" and overtakers:
+        raise BehaveError(f"{policy.path} is a lanekeeping policy: use --keepers, not --overtakers")
+    if policy.behaviour == "overtaking" and keepers:
+        raise BehaveError(f"{policy.path} is an overtaking policy: use --overtakers, not --keepers")
 
 
 def partial_path(final: Path) -> Path:

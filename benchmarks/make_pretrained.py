@@ -19,11 +19,12 @@ import sys
 import time
 from pathlib import Path
 
-from behaviors.ddpg.checkpoint import load_actor, save_actor_only
+from behaviors.ddpg.checkpoint import save_actor_only
 from behaviors.env import EnvConfig
-from behaviors.evaluate import actor_policy, evaluate
+from behaviors.evaluate import evaluate
 from behaviors.files import atomic_write_text
 from behaviors.metrics import mean_rows
+from behaviors.policy import load_policy
 
 PRETRAINED = Path(__file__).resolve().parents[1] / "behaviors" / "pretrained"
 LANE_WEIGHT = 0.5
@@ -89,7 +90,7 @@ def pick(out: Path, env: EnvConfig, seed: int, episodes: int) -> tuple[Path, dic
     for path in sorted((out / "checkpoints").glob("*.pt")):
         if path.stem in ("last", "interrupted", "episode_00000"):
             continue  # last = final or a numbered one; episode 0 is the untrained start
-        mean = mean_rows(evaluate(env, actor_policy(load_actor(path, env.obs_size)), episodes, seed))
+        mean = mean_rows(evaluate(env, load_policy(path).act, episodes, seed))
         failures = mean["collisions"] + mean["off_tracks"] + mean["no_progress"]
         scored.append(((failures, -mean["reward_sum"]), mean, path))
     _, mean, path = min(scored, key=lambda item: item[0])

@@ -15,14 +15,29 @@ from behaviors.files import check_output_path
 
 
 def evaluate_command(
-    checkpoints: Annotated[list[Path] | None, typer.Argument(help="policy checkpoints to compare")] = None,
+    checkpoints: Annotated[
+        list[Path] | None,
+        typer.Argument(
+            help="policies to compare: .pt files, training run directories or bundled names (traffic, ...)"
+        ),
+    ] = None,
     agents: Annotated[str, typer.Option(help="agent counts to test, e.g. 3,5,7,10")] = "3,5,7,10,12,15,20",
     episodes: Annotated[int, typer.Option(help="episodes averaged per setting", callback=POSITIVE)] = 20,
     behaviour: Annotated[str | None, typer.Option(help="default: the checkpoint's own")] = None,
-    overtakers: Annotated[int, typer.Option(help="overtakers (multi)", callback=NON_NEGATIVE)] = 0,
-    keepers: Annotated[int, typer.Option(help="lane keepers (multi)", callback=NON_NEGATIVE)] = 0,
+    overtakers: Annotated[
+        int, typer.Option(help="overtakers (multi; 4 + 4 if neither)", callback=NON_NEGATIVE)
+    ] = 0,
+    keepers: Annotated[
+        int, typer.Option(help="lane keepers (multi; 4 + 4 if neither)", callback=NON_NEGATIVE)
+    ] = 0,
     placement: Annotated[str | None, typer.Option(help="multi cases, e.g. A,B,C")] = None,
-    scenario: Annotated[str, typer.Option(help="ring, highway or tiny")] = "ring",
+    scenario: Annotated[
+        str | None,
+        typer.Option(
+            help="ring, highway or tiny; traffic driver: roads, roads+ramps, roads+queues or ring "
+            "[default: ring; roads for the traffic driver]"
+        ),
+    ] = None,
     max_steps: Annotated[int, typer.Option(help="steps per episode", callback=POSITIVE)] = 1000,
     seed: Annotated[int, typer.Option(help="makes the evaluation repeatable", callback=SEED)] = 0,
     baseline: Annotated[

@@ -62,7 +62,11 @@ def populate_command(
         ),
     ] = None,
     policy: Annotated[
-        Path, typer.Option(help="checkpoint (default: bundled multi-behaviour policy)")
+        Path,
+        typer.Option(
+            help="a bundled policy's name (traffic, lanekeeping, overtaking, multi), a .pt checkpoint or a "
+            "training run's directory [default: traffic]"
+        ),
     ] = DEFAULT_POLICY,
     background: Annotated[
         int | None,

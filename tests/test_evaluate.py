@@ -101,3 +101,17 @@ def test_opponents_and_the_shield_reach_every_setting(checkpoint):
                            keepers=0, placements=None, scenario="ring", seed=0, max_steps=10, baseline=None,
                            opponents=3, shield=True)  # fmt: skip
     assert [(c.n_opponents, c.shield) for _, c in plan.settings] == [(3, True), (3, True)]
+
+
+def test_a_traffic_policy_gets_its_driver_its_roads_and_four_plus_four_agents():
+    options = {"agents": [], "episodes": 1, "behaviour": None, "overtakers": 0, "keepers": 0,
+               "placements": None, "scenario": None, "seed": 0, "max_steps": 10,
+               "baseline": None}  # fmt: skip
+    plan = plan_evaluation([Path("traffic")], **options)
+    [(label, config)] = plan.settings
+    assert (config.driver, config.scenario, config.behaviour) == ("traffic", "roads", "multi")
+    assert (config.overtakers, config.keepers, label) == (4, 4, "4 overtakers + 4 keepers")
+    with pytest.raises(BehaveError, match="--baseline set the paper's formations"):
+        plan_evaluation([Path("traffic")], **{**options, "baseline": "sumo"})
+    with pytest.raises(BehaveError, match="different driver models"):
+        plan_evaluation([Path("traffic"), Path("multi")], **options)

@@ -21,9 +21,9 @@ from behaviors.populate import (
     PRETRAINED,
     PopulateConfig,
     Population,
-    load_policy,
     partial_path,
     populate,
+    populate_policy,
     use_bfloat16,
 )
 from behaviors.sumo_home import sumo_binary
@@ -240,9 +240,9 @@ def test_bfloat16_actions_stay_close_to_float32():
     """Measured on 1,100 real observations: steer differs by 0.003 (median), 0.03 (99%), 0.06 (max)."""
     obs = highway_observations()
     assert len(obs) >= 1000
-    exact, _, _ = load_policy(PopulateConfig(precision="float32"))
-    half, _, _ = load_policy(PopulateConfig(precision="bfloat16"))
-    diff = np.abs(half(obs) - exact(obs))
+    exact = populate_policy(PopulateConfig(precision="float32")).act
+    half = populate_policy(PopulateConfig(precision="bfloat16")).act
+    diff = np.abs(half(obs, None) - exact(obs, None))
     assert np.median(diff) < 0.005 and np.quantile(diff, 0.99) < 0.05 and diff.max() < 0.1
     assert diff.max() > 0  # it did run in bfloat16
 

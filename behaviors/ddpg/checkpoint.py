@@ -14,6 +14,7 @@ from typing import Any
 import torch
 
 from behaviors.ddpg.networks import ACTION_HIGH, ACTION_LOW, ACTION_NAMES, Actor
+from behaviors.drivers import driver_of_obs_size
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path
 
@@ -51,12 +52,25 @@ def checkpoint_meta(meta: dict[str, Any]) -> dict[str, Any]:
         raise BehaveError(f"unknown algorithm {meta['algorithm']!r}; expected one of {ALGORITHMS}")
     return {
         **meta,
+        **recorded_driver(meta),
         "format_version": FORMAT_VERSION,
         "action_names": list(ACTION_NAMES),
         "action_low": list(ACTION_LOW),
         "action_high": list(ACTION_HIGH),
         "hidden": [int(h) for h in meta["hidden"]],
     }
+
+
+def recorded_driver(meta: dict[str, Any]) -> dict[str, str]:
+    """The driver model a new checkpoint names: the caller's, else the one whose observation has its
+    size, so that the file still names its driver after that driver's observation grows; nothing for
+    sizes no driver takes (the policy loader refuses those)."""
+    if meta.get("driver"):
+        return {"driver": str(meta["driver"])}
+    try:
+        return {"driver": driver_of_obs_size(int(meta["obs_dim"]))[0]}
+    except BehaveError:
+        return {}
 
 
 def _atomic_torch_save(payload: dict[str, Any], path: Path) -> None:

@@ -1,0 +1,151 @@
+"""One loader for every policy a command drives: a bundled name (`traffic`, `lanekeeping`, ...), an
+actor-only file, a training checkpoint or a training run's directory.
+
+Whatever the file, the caller gets one batched act function and what the policy needs around it: its
+driver model, its behaviour and its input size, so no command has to know which driver a file was
+trained for.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from behaviors.ddpg.checkpoint import Checkpoint, load_actor, load_checkpoint
+from behaviors.ddpg.networks import Actor, driving_function
+from behaviors.drivers import driver_of_obs_size, make_driver
+from behaviors.errors import BehaveError
+
+PRETRAINED = Path(__file__).parent / "pretrained"
+"""The bundled policies: `--policy NAME` means PRETRAINED/NAME.pt."""
+RUN_CHECKPOINTS = ("final", "interrupted", "last")
+"""Which checkpoint of a training run's directory drives, first found first: the end of a finished run,
+else where a stopped one stopped, else its latest save."""
+
+Act = Callable[[np.ndarray, np.ndarray | None], np.ndarray]
+"""(observations [n, D], agent slots [n] or None) -> actions [n, 3] (steer, accel, brake)."""
+
+
+@dataclass(frozen=True)
+class Policy:
+    """A loaded policy and what it needs: its driver model, behaviour and number of inputs."""
+
+    label: str  # how tables name it: the bundled name, the run's directory or the file's stem
+    path: Path
+    driver: str  # "paper" or "traffic" (drivers.DRIVERS)
+    behaviour: str  # "lanekeeping", "overtaking" or "multi"
+    obs_dim: int
+    act: Act
+
+    @property
+    def with_id(self) -> bool:
+        """Whether its agents see their behaviour id (multi-behaviour policies)."""
+        return self.behaviour == "multi"
+
+
+def bundled_names() -> list[str]:
+    return sorted(path.stem for path in PRETRAINED.glob("*.pt"))
+
+
+def resolve(spec: str | Path) -> tuple[Path, str]:
+    """The checkpoint file a user means, and its label: a file, a run directory (its RUN_CHECKPOINTS)
+    or a bare bundled name."""
+    path = Path(spec)
+    if path.is_file():
+        return path, path.stem
+    if path.is_dir():
+        for name in RUN_CHECKPOINTS:
+            if (path / "checkpoints" / f"{name}.pt").is_file():
+                return path / "checkpoints" / f"{name}.pt", path.name
+        names = ", ".join(f"{name}.pt" for name in RUN_CHECKPOINTS)
+        raise BehaveError(f"{path} is not a training run: its checkpoints/ holds none of {names}")
+    if not path.suffix and path.parent == Path("."):  # a bare name: a bundled policy
+        bundled = PRETRAINED / f"{path.name}.pt"
+        if bundled.is_file():
+            return bundled, path.name
+    if path.parent == PRETRAINED:
+        raise BehaveError(f"the bundled policy {path.name} is missing; run `make pretrained`")
+    raise BehaveError(
+        f"checkpoint not found: {spec} (give a .pt file, a training run's directory or a bundled "
+        f"policy: {', '.join(bundled_names())})"
+    )
+
+
+def policy_driver(meta: dict[str, Any]) -> str:
+    """The driver model a checkpoint names, or for files saved before checkpoints named it, the one
+    whose observation has its input size."""
+    return str(meta.get("driver") or driver_of_obs_size(int(meta["obs_dim"]))[0])
+
+
+def policy_behaviour(meta: dict[str, Any]) -> str:
+    """The behaviour it was trained for: recorded, else one learnt behaviour or several (multi)."""
+    behaviours = meta["behaviours"]
+    return str(meta.get("behaviour") or ("multi" if len(behaviours) > 1 else behaviours[0]))
+
+
+def load_policy(spec: str | Path, *, half: Callable[[int], bool] | None = None) -> Policy:
+    """Load any policy as one batched act function; BehaveError names what does not fit.
+
+    `half(batch)`: whether a batch of that many observations runs in bfloat16 (populate's big
+    fleets); None: always float32, exactly as trained.
+    """
+    path, label = resolve(spec)
+    ckpt = load_checkpoint(path)
+    obs_dim = int(ckpt.meta["obs_dim"])
+    driver, behaviour = policy_driver(ckpt.meta), policy_behaviour(ckpt.meta)
+    size = make_driver(driver).obs_size(behaviour == "multi")
+    if obs_dim != size:
+        raise BehaveError(
+            f"{path} takes {obs_dim} observations, but the {driver} driver's {behaviour} agents see {size} "
+            "now: it was trained for an earlier observation; retrain it"
+        )
+    actors = independent_actors(ckpt)
+    act = slot_act(actors) if actors else actor_act(load_actor(path), half)
+    return Policy(label, path, driver, behaviour, obs_dim, act)
+
+
+def independent_actors(ckpt: Checkpoint) -> list[Actor]:
+    """A multi-DDPG checkpoint's one actor per agent slot (empty for a shared policy)."""
+    states = (ckpt.extra_state or {}).get("actors") if ckpt.meta["algorithm"] == "multi-ddpg" else None
+    actors = []
+    for state in states or []:
+        actor = Actor(ckpt.meta["obs_dim"], ckpt.meta["hidden"])
+        actor.load_state_dict(state)
+        actors.append(actor.eval().requires_grad_(False))
+    return actors
+
+
+def actor_act(actor: Actor, half: Callable[[int], bool] | None = None) -> Act:
+    """The whole fleet through one batched forward pass; in bfloat16 where `half` says so."""
+    drive = driving_function(actor)
+    low = None if half is None else copy.deepcopy(actor).to(torch.bfloat16)
+
+    def act(obs: np.ndarray, slots: np.ndarray | None = None) -> np.ndarray:
+        obs = np.asarray(obs, np.float32)
+        if low is not None and half is not None and half(len(obs)):
+            with torch.inference_mode():
+                return low(torch.from_numpy(obs).to(torch.bfloat16)).float().numpy()
+        return drive(obs)
+
+    return act
+
+
+def slot_act(actors: list[Actor]) -> Act:
+    """Each agent slot its own actor (slot mod count); without slots (populate) the first one."""
+
+    def act(obs: np.ndarray, slots: np.ndarray | None = None) -> np.ndarray:
+        owner = np.zeros(len(obs), np.int64) if slots is None else slots % len(actors)
+        out = np.empty((len(obs), 3), np.float32)
+        with torch.inference_mode():
+            for k in np.unique(owner):
+                rows = owner == k
+                out[rows] = actors[k](torch.as_tensor(obs[rows], dtype=torch.float32)).numpy()
+        return out
+
+    return act
