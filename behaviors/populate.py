@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from behaviors.actuation import CarModel
-from behaviors.control import Fleet
+from behaviors.control import Fleet, RoadFrame
 from behaviors.drivers import make_driver
 from behaviors.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.errors import BehaveError
@@ -269,8 +269,31 @@ STANDSTILL_SPEED = 0.1
 """m/s: SUMO speeds below this count as standing still."""
 LONG_STANDSTILL_S = 30.0
 """Standing still this long at a time is reported (a car waiting at a light, or stuck)."""
+INCIDENT_COLUMNS = ("incident_side", "incident_lane", "incident_lane_offset_m", "incident_other",
+                    "incident_speed_mps", "incident_other_speed_mps", "incident_headway_s",
+                    "incident_lateral_gap_m")  # fmt: skip
 AGENT_COLUMNS = ("id", "behaviour", "vtype", "depart_s", "end_s", "end_reason", "distance_m",
-                 "longest_standstill_s")  # fmt: skip
+                 "longest_standstill_s", *INCIDENT_COLUMNS)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Incident:
+    """How an agent's collision or off-track looked at the read its last action was chosen from (one
+    step before it), so a user sees what happened without reading FCD. Cars are taken as the agent's
+    size; positions are front bumpers, sides seen from the agent's heading."""
+
+    side: str  # where the other car was (left, right, front, rear), or the edge an agent left by
+    lane: str  # the agent's SUMO lane
+    lane_offset_m: float  # from that lane's centre, + = left
+    other: str  # the other vehicle's id; "" for an off-track
+    speed_mps: float  # the agent's SUMO speed
+    other_speed_mps: float  # the other's SUMO speed (nan: none)
+    headway_s: float  # front or rear: bumper gap / the follower's speed (nan: side by side, off-track)
+    lateral_gap_m: float  # left or right: between the two cars' sides; off-track: to the road's edge
+
+
+NO_INCIDENT = Incident("", "", np.nan, "", np.nan, np.nan, np.nan, np.nan)
+"""The incident columns of an agent that neither collided nor left the road: empty cells."""
 
 
 @dataclass(frozen=True)
@@ -285,6 +308,55 @@ class AgentRow:
     end_reason: str
     distance_m: float
     longest_standstill_s: float
+    incident: Incident = NO_INCIDENT
+
+    def cells(self) -> list[Any]:
+        """The row's CSV cells in AGENT_COLUMNS order, the incident's rounded, nan as empty."""
+        *values, incident = astuple(self)
+        return [*values, *(csv_cell(value) for value in incident)]
+
+
+def csv_cell(value: Any) -> Any:
+    if isinstance(value, float):
+        return "" if np.isnan(value) else round(value, 3)
+    return value
+
+
+def collision_incident(
+    front: np.ndarray,
+    heading: float,
+    speed: float,
+    other_front: np.ndarray,
+    other_speed: float,
+    car: CarModel,
+) -> tuple[str, float, float]:
+    """(side, headway, lateral gap) of two cars from their front bumpers and speeds: side by side
+    where they overlap lengthwise (left or right), else one follows the other (front or rear)."""
+    dx, dy = other_front - front
+    along = dx * np.cos(heading) + dy * np.sin(heading)
+    across = -dx * np.sin(heading) + dy * np.cos(heading)
+    gap = abs(along) - car.length
+    if gap <= 0:
+        return ("left" if across > 0 else "right"), np.nan, float(abs(across) - car.width)
+    follower_speed = speed if along > 0 else other_speed
+    headway = gap / follower_speed if follower_speed > 0 else np.inf
+    return ("front" if along > 0 else "rear"), float(headway), np.nan
+
+
+def lane_offsets(geometry: RoadGeometry, frame: RoadFrame) -> np.ndarray:
+    """Each agent's offset from its lane's centre (+ = left), from its carriageway offset."""
+    rows = frame.lane_row
+    lanes = geometry.lane_num_lanes[rows]
+    return frame.offset - (geometry.lane_number[rows] - (lanes - 1) / 2) * geometry.lane_width[rows]
+
+
+def partners(pairs: list[tuple[str, str]]) -> dict[str, str]:
+    """Each vehicle in a contact and the (first) vehicle it touched."""
+    other: dict[str, str] = {}
+    for collider, victim in pairs:
+        other.setdefault(collider, victim)
+        other.setdefault(victim, collider)
+    return other
 
 
 class AgentLog:
@@ -316,13 +388,14 @@ class AgentLog:
         self.standing[present] = np.where(speed < STANDSTILL_SPEED, standing + self.dt, 0.0)
         np.maximum(self.longest, self.standing, out=self.longest)
 
-    def end(self, reasons: np.ndarray, time: float) -> None:
-        """Close the rows whose reason is not empty and drop them (as the fleet drops them)."""
+    def end(self, reasons: np.ndarray, time: float, incidents: dict[int, Incident]) -> None:
+        """Close the rows whose reason is not empty, with their `incidents` (by row), and drop them
+        (as the fleet drops them)."""
         ending = reasons != ""
         if not ending.any():
             return
         for k in np.flatnonzero(ending):
-            self.ended.append(self._row(int(k), str(reasons[k]), time))
+            self.ended.append(self._row(int(k), str(reasons[k]), time, incidents.get(int(k), NO_INCIDENT)))
         keep = ~ending
         self.ids = [v for v, k in zip(self.ids, keep.tolist(), strict=True) if k]
         self.behaviour = [b for b, k in zip(self.behaviour, keep.tolist(), strict=True) if k]
@@ -333,11 +406,11 @@ class AgentLog:
         """Every agent of the run, those still on the road ending `still_driving` at `time`."""
         return self.ended + [self._row(k, "still_driving", time) for k in range(len(self.ids))]
 
-    def _row(self, k: int, reason: str, time: float) -> AgentRow:
+    def _row(self, k: int, reason: str, time: float, incident: Incident = NO_INCIDENT) -> AgentRow:
         vtype = OVERTAKER_TYPE if self.behaviour[k] == "overtaker" else KEEPER_TYPE
         return AgentRow(
             self.ids[k], self.behaviour[k], vtype, round(float(self.depart[k]), 3), round(time, 3), reason,
-            round(float(self.distance[k]), 2), round(float(self.longest[k]), 3),
+            round(float(self.distance[k]), 2), round(float(self.longest[k]), 3), incident,
         )  # fmt: skip
 
 
@@ -351,7 +424,7 @@ def write_agents_csv(path: Path, rows: list[AgentRow]) -> None:
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(AGENT_COLUMNS)
-    writer.writerows(astuple(row) for row in rows)
+    writer.writerows(row.cells() for row in rows)
     atomic_write_text(path, out.getvalue())
 
 
@@ -364,6 +437,7 @@ class Population:
         self.policy = populate_policy(config)  # a wrong policy is found before set-up
         self.geometry = load_geometry(config.net, cache=True, on_status=on_status)
         self.graph = route_graph(self.geometry)
+        self.lane_ids = list(self.geometry.lane_index)  # by lane row: names the lane of an incident
         self._check_capacity()
         self.rng = np.random.default_rng(config.seed)
         self.timer = PhaseTimer()
@@ -450,6 +524,7 @@ class Population:
         """Sense, act, let SUMO step, then take stock: the one read of SUMO serves the next step too."""
         sim, fleet, c = self.sim, self.fleet, self.config
         assert sim is not None
+        before = self.vehicles  # the read this step's actions are chosen from
         off_track = np.zeros(len(fleet), bool)
         if len(fleet):
             assert self.vehicles is not None
@@ -475,7 +550,9 @@ class Population:
             self._observe_agents(~gone, vehicles.speed[rows[~gone]])
         leaving = crashed | off_track | gone
         if leaving.any():  # most steps nobody leaves: no per-agent reasons to build
-            self.log.end(end_reasons(crashed, off_track, gone, self._arrived(gone, arrived)), now)
+            reasons = end_reasons(crashed, off_track, gone, self._arrived(gone, arrived))
+            incidents = self._incidents(reasons, before, partners(sim.collision_pairs()) if contact else {})
+            self.log.end(reasons, now, incidents)
         self.summary.collisions += int(crashed.sum())
         self.summary.off_tracks += int((off_track & ~crashed).sum())
         self.summary.agent_steps += len(fleet)
@@ -525,6 +602,42 @@ class Population:
         for name, mask in (("overtaker", overtaker), ("keeper", ~overtaker)):
             self.summary.speed_sum[name] += float(speed[mask].sum())
             self.summary.speed_steps[name] += int(mask.sum())
+
+    def _incidents(
+        self, reasons: np.ndarray, before: VehicleState | None, other: dict[str, str]
+    ) -> dict[int, Incident]:
+        """The incident of each agent (by row) that collided or left the road this step, as things
+        stood at `before`, the read its action was chosen from."""
+        fleet, frame = self.fleet, self.fleet.frame
+        lost = np.flatnonzero((reasons == "collision") | (reasons == "off_track"))
+        if before is None or frame is None or not len(lost):
+            return {}
+        offsets = lane_offsets(self.geometry, frame)
+        out = {}
+        for k in lost.tolist():
+            row = fleet.vehicle_rows[k]
+            speed, lane, offset = (
+                float(before.speed[row]),
+                self.lane_ids[frame.lane_row[k]],
+                float(offsets[k]),
+            )
+            if reasons[k] == "off_track":
+                side = "left" if frame.offset[k] > 0 else "right"
+                edge_gap = float(frame.half_width[k] - abs(frame.offset[k]) - fleet.car.width / 2)
+                out[k] = Incident(side, lane, offset, "", speed, np.nan, np.nan, edge_gap)
+                continue
+            partner = other.get(fleet.ids[k], "")
+            o = before.row.get(partner)
+            if o is None:  # a car that was not on the road before this step
+                out[k] = Incident("", lane, offset, partner, speed, np.nan, np.nan, np.nan)
+                continue
+            other_speed = float(before.speed[o])
+            heading = float(frame.heading[k])
+            side, headway, lateral = collision_incident(
+                before.position[row], heading, speed, before.position[o], other_speed, fleet.car
+            )
+            out[k] = Incident(side, lane, offset, partner, speed, other_speed, headway, lateral)
+        return out
 
     def _arrived(self, gone: np.ndarray, arrived: set[str]) -> np.ndarray:
         """Which agents SUMO took out this step because they reached the end of their route."""

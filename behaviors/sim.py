@@ -236,6 +236,11 @@ class SumoSim:
             hit.add(c.victim)
         return hit
 
+    def collision_pairs(self) -> list[tuple[str, str]]:
+        """(collider, victim) of every contact this step: who hit whom, which `collisions` forgets.
+        Only asked for in steps with a contact, to explain it."""
+        return [(c.collider, c.victim) for c in self._sumo.simulation.getCollisions()]
+
     def arrived(self) -> set[str]:
         """Vehicles that left the network this step at the end of their route."""
         return set(self._sumo.simulation.getArrivedIDList())

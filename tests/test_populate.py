@@ -8,7 +8,9 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
+import torch
 
 from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.ddpg.networks import Actor
@@ -16,8 +18,10 @@ from behaviors.errors import BehaveError
 from behaviors.export import read_fcd, validate_fcd_xml
 from behaviors.lanes import TRAFFIC_OBS_SIZE
 from behaviors.populate import (
+    AGENT_COLUMNS,
     BFLOAT16_MIN_BATCH,
     DEFAULT_POLICY,
+    INCIDENT_COLUMNS,
     PRETRAINED,
     PopulateConfig,
     Population,
@@ -261,3 +265,39 @@ def test_the_shield_removes_most_crashes_on_a_crowded_highway(tmp_path, multi_po
     assert bare.side_cuts == bare.speed_cuts == 0
     assert shielded.side_cuts > 0 and shielded.speed_cuts > 0
     assert shielded.collisions <= bare.collisions / 4
+
+
+def steering_policy(tmp: Path, steer: float) -> Path:
+    """A lane-keeping policy that ignores what it sees: always `steer`, half throttle, no brake."""
+    path = policy_file(tmp, 65, "lanekeeping")
+    actor = Actor(65, (32, 32))
+    with torch.no_grad():
+        actor.head.weight.zero_()
+        actor.head.bias.copy_(torch.tensor([np.arctanh(steer), 0.0, -10.0]))
+    save_checkpoint(path, actor_state=actor.state_dict(), meta=load_checkpoint(path).meta)
+    return path
+
+
+def test_every_collision_and_off_track_is_explained_in_the_agents_table(tmp_path):
+    """Keepers that all steer left, unshielded, among SUMO's cars: those in the left lane leave the
+    road by its left edge, some of the others side-swipe the cars in the lane beside them."""
+    fcd = tmp_path / "fcd.xml"
+    summary = populate(PopulateConfig(policy=steering_policy(tmp_path, 0.3), overtakers=0, keepers=30,
+                                      background=30, duration=8.0, shield=False, fcd=fcd))  # fmt: skip
+    table = pd.read_csv(tmp_path / "fcd.agents.csv", dtype={"incident_other": str})
+    assert tuple(table.columns) == AGENT_COLUMNS  # one schema, incidents or not
+    crashed, left = table[table.end_reason == "collision"], table[table.end_reason == "off_track"]
+    assert (len(crashed), len(left)) == (summary.collisions, summary.off_tracks)
+    assert len(crashed) >= 1 and len(left) >= 1
+    lost = pd.concat([crashed, left])
+    assert lost["incident_lane"].str.match(r"e\d+_\d$").all()
+    assert lost["incident_speed_mps"].gt(0).all() and lost["incident_lane_offset_m"].notna().all()
+    assert (left["incident_side"] == "left").all() and left["incident_other"].isna().all()
+    assert left["incident_lateral_gap_m"].between(-1.0, 1.0).all()  # to the road's left edge
+    assert crashed["incident_other"].isin(set(read_fcd(fcd)["id"])).all()
+    assert crashed["incident_other_speed_mps"].gt(0).all()
+    beside = crashed["incident_side"].isin(["left", "right"])
+    assert crashed["incident_lateral_gap_m"].notna().eq(beside).all()
+    assert crashed["incident_headway_s"].notna().eq(~beside).all()
+    quiet = table[~table.end_reason.isin(["collision", "off_track"])]
+    assert quiet[list(INCIDENT_COLUMNS)].isna().all().all()
