@@ -22,7 +22,6 @@ from behaviors.env import (
     BEHAVIOURS,
     KEEPER_TYPE,
     OVERTAKER_TYPE,
-    ROAD_FAMILIES,
     TRAINING_ROADS,
     BehaveEnv,
     EnvConfig,
@@ -263,10 +262,10 @@ def agent_settings(
     return [(f"{n} agents", dataclasses.replace(base, agents=n)) for n in agents]
 
 
-def measurable_net(config: EnvConfig) -> bool:
-    """Whether every episode runs on one net, which the realism report reads its lanes from (a family
-    of training roads mixes nets whose lane ids clash)."""
-    return config.scenario not in ROAD_FAMILIES
+def records_fcd(config: EnvConfig) -> bool:
+    """Whether SUMO can record the setting's episodes for the realism report: the paper's environment
+    passes `sim_extra` (the FCD options) to SUMO, TrafficEnv does not."""
+    return not make_driver(config.driver).among_traffic
 
 
 def run_plan(
@@ -297,7 +296,7 @@ def run_plan(
                     act: Act = lambda obs, slots: np.zeros((len(obs), 3), np.float32)  # noqa: E731
                 else:
                     env_config, act = config, policy.act
-                fcd = record if measurable_net(config) else None
+                fcd = record if records_fcd(config) else None
                 episodes = evaluate(env_config, act, plan.episodes, plan.seed, record=fcd)
                 mean = mean_rows(episodes)
                 if "passed_frac" in mean:
@@ -323,11 +322,13 @@ def realism_of_setting(
     *,
     picture: bool,
 ) -> list[dict[str, Any]]:
-    """Measure the recorded episodes (None: not recorded, see measurable_net), write their report to
+    """Measure the recorded episodes (None: not recorded, see records_fcd), write their report to
     realism/<policy>/<setting>/ and return its main rows; if there is nothing to measure, one row
     that says why."""
     if record is None:
-        return [{"policy": policy, "setting": setting, "group": f"none: {config.scenario} mixes nets"}]
+        return [
+            {"policy": policy, "setting": setting, "group": f"none: no FCD of the {config.driver} driver"}
+        ]
     try:
         report = measure_episodes(record, episodes, scenario_net(config))
     except NothingToMeasure:

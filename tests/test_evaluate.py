@@ -115,3 +115,11 @@ def test_a_traffic_policy_gets_its_driver_its_roads_and_four_plus_four_agents():
         plan_evaluation([Path("traffic")], **{**options, "baseline": "sumo"})
     with pytest.raises(BehaveError, match="different driver models"):
         plan_evaluation([Path("traffic"), Path("multi")], **options)
+
+
+def test_the_traffic_driver_is_evaluated_with_realism_on_and_says_why_it_has_no_report(tmp_path):
+    out = tmp_path / "report"
+    result = CliRunner().invoke(app, ["evaluate", "traffic", "--overtakers", "1", "--keepers", "1",
+                                      "--episodes", "1", "--max-steps", "60", "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "none: no FCD of the traffic driver" in (out / "results.md").read_text()
