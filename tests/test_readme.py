@@ -67,7 +67,8 @@ def environment() -> dict[str, str]:
 
 
 def failure(what: str, result: subprocess.CompletedProcess[str]) -> str:
-    return f"{what} exited {result.returncode}\n--- stdout\n{result.stdout[-3000:]}\n--- stderr\n{result.stderr[-3000:]}"
+    out, err = result.stdout[-3000:], result.stderr[-3000:]
+    return f"{what} exited {result.returncode}\n--- stdout\n{out}\n--- stderr\n{err}"
 
 
 def test_the_readme_has_examples_and_few_long_ones() -> None:
