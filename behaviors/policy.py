@@ -42,6 +42,7 @@ class Policy:
     behaviour: str  # "lanekeeping", "overtaking" or "multi"
     obs_dim: int
     act: Act
+    sees_behaviour: bool  # its agents are told their behaviour: it drives keepers and overtakers alike
 
     @property
     def with_id(self) -> bool:
@@ -99,7 +100,8 @@ def load_policy(spec: str | Path, *, half: Callable[[int], bool] | None = None) 
     ckpt = load_checkpoint(path)
     obs_dim = int(ckpt.meta["obs_dim"])
     driver, behaviour = policy_driver(ckpt.meta), policy_behaviour(ckpt.meta)
-    size = make_driver(driver).obs_size(behaviour == "multi")
+    model = make_driver(driver)
+    size = model.obs_size(behaviour == "multi")
     if obs_dim != size:
         raise BehaveError(
             f"{path} takes {obs_dim} observations, but the {driver} driver's {behaviour} agents see {size} "
@@ -107,7 +109,8 @@ def load_policy(spec: str | Path, *, half: Callable[[int], bool] | None = None) 
         )
     actors = independent_actors(ckpt)
     act = slot_act(actors) if actors else actor_act(load_actor(path), half)
-    return Policy(label, path, driver, behaviour, obs_dim, act)
+    sees_behaviour = behaviour == "multi" or model.obs_size(False) == model.obs_size(True)
+    return Policy(label, path, driver, behaviour, obs_dim, act, sees_behaviour)
 
 
 def independent_actors(ckpt: Checkpoint) -> list[Actor]:

@@ -712,16 +712,17 @@ def populate_policy(config: PopulateConfig) -> Policy:
 
 
 def check_fits(config: PopulateConfig, policy: Policy) -> None:
-    """BehaveError if the policy cannot drive the agents asked for: a paper policy drives only its
-    behaviours, and only on the multi-lane roads behave routes its own cars on."""
+    """BehaveError if the policy cannot drive the agents asked for: one not told the behaviour drives
+    only its own, and one that never trained among traffic only on the multi-lane roads behave routes
+    its own cars on."""
     keepers, overtakers = config.share_kinds
     keepers, overtakers = keepers or config.keepers > 0, overtakers or config.overtakers > 0
-    if policy.driver == "paper" and config.share > 0:
+    if not make_driver(policy.driver).among_traffic and config.share > 0:
         raise BehaveError(
-            f"{policy.path} drives the paper's TORCS model, which cannot leave multi-lane roads: "
+            f"{policy.path} drives the {policy.driver} driver, which cannot leave multi-lane roads: "
             "--share needs a traffic-driver policy"
         )
-    if policy.behaviour == "multi":
+    if policy.sees_behaviour:
         return
     if overtakers and keepers:
         raise BehaveError(
