@@ -46,7 +46,8 @@ class Policy:
 
     @property
     def with_id(self) -> bool:
-        """Whether its agents see their behaviour id (multi-behaviour policies)."""
+        """Whether its environment appends the behaviour id to the observation (EnvConfig.with_id, for
+        multi-behaviour policies); the traffic driver's observation holds it anyway."""
         return self.behaviour == "multi"
 
 
