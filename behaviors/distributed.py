@@ -3,11 +3,13 @@
 libsumo runs one simulation per process, so each rollout worker is a Ray actor (its own
 process, its own SUMO). A worker drives whole episodes with the shared actor's weights as of
 the episode's start and its own exploration noise, and sends the episode's transitions back.
-The learner (this process) owns the one replay buffer: it stores each finished episode, does
-that episode's share of updates (one per agent transition, the paper's schedule, unless
---updates-per-step) while the workers drive the next episodes, and hands the new weights to the
-worker it starts next. Metrics, checkpoints, TensorBoard and --resume are the Trainer's; a
-resumed run continues with fresh episodes (the workers' timing makes runs not bit-repeatable).
+The learner (train.py's DistributedTrainer, in the calling process) owns the one replay buffer:
+it stores each finished episode, does that episode's share of updates (one per agent transition,
+the paper's schedule, unless --updates-per-step) while the workers drive the next episodes, and
+hands the new weights to the worker it starts next. Metrics, checkpoints, TensorBoard and --resume
+are the Trainer's; a resumed run continues with fresh episodes (the workers' timing makes runs not
+bit-repeatable). This module is the Ray side only: it is given what it needs (WorkerSetup) and
+imports nothing of train.py, which imports it.
 """
 
 from __future__ import annotations
@@ -16,20 +18,20 @@ import logging
 import os
 import socket
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from behaviors.ddpg.learner import DDPGLearner, clip_actions
+from behaviors.ddpg.learner import DDPGConfig, clip_actions
 from behaviors.ddpg.networks import Actor
 from behaviors.ddpg.noise import OUNoise
-from behaviors.env import create_env
+from behaviors.env import EnvConfig, create_env
 from behaviors.errors import BehaveError
 from behaviors.metrics import EpisodeStats
-from behaviors.train import TrainConfig, Trainer, episode_row, episode_seed
 
 WAIT_S = 0.5
 """How often the learner looks for a stop signal while it waits for an episode."""
@@ -53,24 +55,35 @@ class Rollout:
     wall_s: float
 
 
+@dataclass(frozen=True)
+class WorkerSetup:
+    """What each rollout worker is sent of the run: its env, the learner's network and noise
+    settings, the critic's reward scale and the run's seed (each worker's noise seed derives from it)."""
+
+    env: EnvConfig
+    learner: DDPGConfig
+    reward_scale: float
+    seed: int
+
+
 class RolloutWorker:
     """Drives episodes in its own process (a Ray actor) with the weights it is given."""
 
-    def __init__(self, config: TrainConfig, index: int) -> None:
+    def __init__(self, setup: WorkerSetup, index: int) -> None:
         torch.set_num_threads(1)  # SUMO and the actor share the worker's core
-        self.config = config
-        self.env = create_env(config.env_config())
-        learner = config.ddpg_config()
+        self.reward_scale = setup.reward_scale
+        self.env = create_env(setup.env)
+        learner = setup.learner
         self.actor = Actor(self.env.config.obs_size, learner.hidden)
         self.noise = OUNoise(
-            learner.ou_mu, learner.ou_theta, learner.ou_sigma, config.seed + 1000 * (index + 1),
+            learner.ou_mu, learner.ou_theta, learner.ou_sigma, setup.seed + 1000 * (index + 1),
             learner.explore_decay_steps,
         )  # fmt: skip
 
     def episode(self, actor_state: dict[str, torch.Tensor], seed: int, explore_step: int) -> Rollout:
         """One episode; `explore_step` (env steps so far, all workers) sets the noise's decay."""
         start = time.perf_counter()
-        env, scale = self.env, self.config.critic_reward_scale
+        env, scale = self.env, self.reward_scale
         self.actor.load_state_dict(actor_state)
         self.noise.steps = explore_step
         obs = env.reset_arrays(seed)
@@ -89,59 +102,41 @@ class RolloutWorker:
         return Rollout(obs_, act, rew, next_obs, terminated, len(rows), log, time.perf_counter() - start)
 
 
-class DistributedTrainer(Trainer):
-    """The Trainer's loop and run directory, with episodes driven by Ray rollout workers."""
+class RayWorkers:
+    """Rollout workers on Ray: an idle worker is handed an episode; episodes come back as they end."""
 
-    def __init__(self, config: TrainConfig, out: Path, ray_address: str | None = None) -> None:
-        super().__init__(config, out)  # TrainConfig.validate refuses multi-ddpg with workers
-        self.ray_address = ray_address
-        self.workers: list[Any] = []
+    def __init__(self, ray: Any, workers: list[Any]) -> None:
+        self.ray = ray
+        self.workers = workers
         self.pending: dict[Any, Any] = {}  # episode under way -> its worker
-        self.started = 0  # episodes handed out so far (the next one's seed)
 
-    def run(self, on_episode=None) -> list[dict[str, Any]]:
-        ray = start_ray(self.ray_address, self.config.workers)
-        try:
-            remote = ray.remote(num_cpus=1)(RolloutWorker)
-            self.workers = [remote.remote(self.config, k) for k in range(self.config.workers)]
-            self.started = self.episode
-            return super().run(on_episode)
-        finally:
-            ray.shutdown()  # ends this run's workers (a cluster keeps running)
-
-    def run_episode(self) -> dict[str, Any] | None:
-        """The next episode any worker finishes, stored and learnt from; None if stopped."""
-        import ray
-
-        learner = self.learner
-        assert isinstance(learner, DDPGLearner)
+    def idle(self) -> list[Any]:
         busy = set(self.pending.values())
-        for worker in self.workers:
-            if worker not in busy and self.started < self.config.episodes:
-                self._start(worker)
+        return [worker for worker in self.workers if worker not in busy]
+
+    def start(self, worker: Any, actor_state: dict[str, torch.Tensor], seed: int, explore_step: int) -> None:
+        self.pending[worker.episode.remote(actor_state, seed, explore_step)] = worker
+
+    def finished(self, stop: Callable[[], bool]) -> Rollout | None:
+        """The next episode any worker finishes; None as soon as `stop()` holds."""
         done: list[Any] = []
         while not done:
-            if self.stop_requested:
+            if stop():
                 return None
-            done, _ = ray.wait(list(self.pending), num_returns=1, timeout=WAIT_S)
+            done, _ = self.ray.wait(list(self.pending), num_returns=1, timeout=WAIT_S)
         self.pending.pop(done[0])
-        rollout = fetch(ray, done[0])
-        updates_before = learner.updates
-        learner.observe(rollout.obs, rollout.act, rollout.rew, rollout.next_obs, rollout.terminated)
-        learner.noise.steps += rollout.steps  # env steps of all workers: the exploration decay
-        per_step = self.config.updates_per_step
-        learner.update(len(rollout.obs) if per_step is None else per_step * rollout.steps, self.update_log)
-        return episode_row(
-            self.episode, rollout.stats, rollout.wall_s, learner.updates - updates_before, self.speed_limit
-        )
+        return fetch(self.ray, done[0])
 
-    def _start(self, worker: Any) -> None:
-        learner = self.learner
-        assert isinstance(learner, DDPGLearner)
-        weights = {name: value.detach().clone() for name, value in learner.actor.state_dict().items()}
-        seed = episode_seed(self.config.seed, self.started)
-        self.pending[worker.episode.remote(weights, seed, learner.noise.steps)] = worker
-        self.started += 1
+
+@contextmanager
+def ray_workers(address: str | None, setup: WorkerSetup, count: int) -> Iterator[RayWorkers]:
+    """`count` rollout workers on Ray (local, or the cluster at `address`), ended on exit."""
+    ray = start_ray(address, count)
+    try:
+        remote = ray.remote(num_cpus=1)(RolloutWorker)
+        yield RayWorkers(ray, [remote.remote(setup, k) for k in range(count)])
+    finally:
+        ray.shutdown()  # ends this run's workers (a cluster keeps running)
 
 
 def start_ray(address: str | None, workers: int) -> Any:

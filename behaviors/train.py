@@ -35,6 +35,7 @@ import torch
 from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.ddpg.learner import DDPGConfig, DDPGLearner, IndependentLearners, UpdateStats
 from behaviors.ddpg.replay_files import ReplayFiles
+from behaviors.distributed import RayWorkers, WorkerSetup, ray_workers
 from behaviors.env import BEHAVIOURS, EnvConfig, create_env
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path, atomic_write_bytes, atomic_write_text, ensure_writable_dir
@@ -90,7 +91,7 @@ class TrainConfig:
     checkpoint_every: int = 10
     init: str | None = None  # checkpoint to start from (curriculum: overtaking from lane keeping)
     max_minutes: float | None = None  # wall-clock budget: stop after the episode that exceeds it
-    workers: int = 1  # more: rollout workers on Ray, one learner (distributed.py)
+    workers: int = 1  # more: rollout workers on Ray (distributed.py), one learner (DistributedTrainer)
 
     def validate(self) -> None:
         if self.algo not in ALGORITHMS:
@@ -383,6 +384,45 @@ class Trainer:
             plot_curve(self.out / "curve.png", self.rows)
 
 
+class DistributedTrainer(Trainer):
+    """The Trainer's loop and run directory, with episodes driven by Ray rollout workers."""
+
+    def __init__(self, config: TrainConfig, out: Path, ray_address: str | None = None) -> None:
+        super().__init__(config, out)  # TrainConfig.validate refuses multi-ddpg with workers
+        self.ray_address = ray_address
+        self.workers: RayWorkers | None = None  # while run() trains
+        self.started = 0  # episodes handed out so far (the next one's seed)
+
+    def run(self, on_episode: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
+        c = self.config
+        setup = WorkerSetup(c.env_config(), c.ddpg_config(), c.critic_reward_scale, c.seed)
+        with ray_workers(self.ray_address, setup, c.workers) as self.workers:
+            self.started = self.episode
+            return super().run(on_episode)
+
+    def run_episode(self) -> dict[str, Any] | None:
+        """The next episode any worker finishes, stored and learnt from; None if stopped."""
+        learner, workers = self.learner, self.workers
+        assert isinstance(learner, DDPGLearner) and workers is not None
+        for worker in workers.idle():
+            if self.started < self.config.episodes:
+                weights = {name: value.detach().clone() for name, value in learner.actor.state_dict().items()}
+                seed = episode_seed(self.config.seed, self.started)
+                workers.start(worker, weights, seed, learner.noise.steps)
+                self.started += 1
+        rollout = workers.finished(lambda: self.stop_requested)
+        if rollout is None:
+            return None
+        updates_before = learner.updates
+        learner.observe(rollout.obs, rollout.act, rollout.rew, rollout.next_obs, rollout.terminated)
+        learner.noise.steps += rollout.steps  # env steps of all workers: the exploration decay
+        per_step = self.config.updates_per_step
+        learner.update(len(rollout.obs) if per_step is None else per_step * rollout.steps, self.update_log)
+        return episode_row(
+            self.episode, rollout.stats, rollout.wall_s, learner.updates - updates_before, self.speed_limit
+        )
+
+
 def widen_inputs(state: dict, obs_dim: int, obs_first: bool) -> dict:
     """A state dict whose first layer gets zero weights for inputs it did not have (the behaviour id).
 
@@ -535,8 +575,6 @@ def prepare_run(
     ensure_writable_dir(out)
     ensure_writable_dir(out / "checkpoints")
     if config.workers > 1:
-        from behaviors.distributed import DistributedTrainer
-
         trainer: Trainer = DistributedTrainer(config, out, ray_address)
     else:
         trainer = Trainer(config, out)
