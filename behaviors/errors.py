@@ -1,5 +1,9 @@
-"""The one domain exception: the CLI turns it into a single stderr line and exit code 2."""
+"""The one domain exception, `BehaveError`, under the name every behaviors module imports.
 
+It is defined in sumo_scenarios.errors, so that sumo_scenarios raises it without importing
+behaviors: imports run from behaviors to sumo_scenarios only.
+"""
 
-class BehaveError(ValueError):
-    """A problem the user can fix (bad option, bad file); its message names the problem."""
+from sumo_scenarios.errors import BehaveError
+
+__all__ = ["BehaveError"]

@@ -17,19 +17,20 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import gzip
 import io
 import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import astuple, dataclass, field
 from pathlib import Path
-from typing import NamedTuple, cast
+from typing import NamedTuple
 
 import numpy as np
 
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_write_bytes
+from sumo_scenarios.net import CAR_CLASS as CAR_CLASS  # behave's vehicle class, for geometry's users
+from sumo_scenarios.net import LaneSpec, read_net
 
 RAY_RANGE = 200.0
 """Range of the track-edge and opponent sensors, metres (as in TORCS)."""
@@ -46,9 +47,6 @@ JUNCTION_GAP = 5.0
 _LANE_GAP = 1.0e6
 """Spacing between lanes in the concatenated lane-position axis (keeps lanes apart)."""
 
-
-CAR_CLASS = "passenger"
-"""The SUMO vehicle class of behave's cars: only lanes (and connections) it may use are road."""
 
 CACHE_VERSION = 2
 """Bumped whenever what the geometry cache holds changes: older caches are rebuilt."""
@@ -228,75 +226,6 @@ def cell_key(points: np.ndarray) -> np.ndarray:
     return cells[:, 0] * (1 << 21) + cells[:, 1]
 
 
-def allows_car(allow: str | None, disallow: str | None) -> bool:
-    """Whether SUMO's allow/disallow lists (a lane's or a connection's) let a passenger car pass."""
-    if allow is not None:
-        return bool({CAR_CLASS, "all"} & set(allow.split()))
-    return disallow is None or not {CAR_CLASS, "all"} & set(disallow.split())
-
-
-@dataclass
-class NetTables:
-    """What behave reads of a .net.xml: every edge's car lanes and the car connections."""
-
-    edges: list[tuple[str, list[LaneSpec], bool]] = field(default_factory=list)  # see build_geometry
-    links: set[tuple[str, str]] = field(default_factory=set)  # normal -> normal, any connection
-    car_links: set[tuple[str, str]] = field(default_factory=set)  # ... that a passenger car may take
-    lefthand: bool = False
-
-
-def read_net(path: Path) -> NetTables:
-    """Edges (normal and junction-internal) with their car lanes, and connections, in one streaming
-    pass of the standard library's C parser: sumolib's object model took minutes on region nets."""
-    out = NetTables()
-    car_lane: set[str] = set()
-    normal: set[str] = set()
-    with open(path, "rb") as head:
-        opener = gzip.open if head.read(2) == b"\x1f\x8b" else open
-    with opener(path, "rb") as stream:
-        for event, elem in ET.iterparse(stream, events=("start", "end")):
-            if event == "start":
-                if elem.tag == "net":
-                    out.lefthand = elem.get("lefthand") == "true"
-                continue
-            if elem.tag == "edge":
-                function = elem.get("function", "normal")
-                if function in ("normal", "internal"):
-                    lanes = [
-                        lane_spec(lane)
-                        for lane in elem.iter("lane")
-                        if allows_car(lane.get("allow"), lane.get("disallow"))
-                    ]
-                    car_lane.update(spec[0] for spec in lanes)
-                    if function == "normal":
-                        normal.add(elem.get("id"))
-                    if lanes:
-                        out.edges.append((elem.get("id"), lanes, function == "normal"))
-                elem.clear()
-            elif elem.tag == "connection":
-                src, dst = elem.get("from"), elem.get("to")
-                if src in normal and dst in normal:
-                    out.links.add((src, dst))
-                    ends = (f"{src}_{elem.get('fromLane')}", f"{dst}_{elem.get('toLane')}")
-                    if all(lane in car_lane for lane in ends) and allows_car(
-                        elem.get("allow"), elem.get("disallow")
-                    ):
-                        out.car_links.add((src, dst))
-                elem.clear()
-    return out
-
-
-def lane_spec(lane: ET.Element) -> LaneSpec:
-    points = [tuple(map(float, point.split(",")[:2])) for point in lane.get("shape", "").split()]
-    shape = cast("list[tuple[float, float]]", points)  # x,y of every point
-    width = float(lane.get("width", DEFAULT_LANE_WIDTH))
-    return (lane.get("id", ""), shape, width, float(lane.get("speed", 13.89)), float(lane.get("length", 0.0)))
-
-
-DEFAULT_LANE_WIDTH = 3.2
-"""SUMO's lane width where the net does not name one."""
-
-
 def load_geometry(
     net_file: Path | str, cache: bool = False, on_status: Callable[[str], None] | None = None
 ) -> RoadGeometry:
@@ -388,10 +317,6 @@ def read_cache(path: Path, key: np.ndarray) -> RoadGeometry | None:
         lefthand=bool(arrays["lefthand"]),
         **{name: arrays[name] for name in LANE_TABLES},
     )
-
-
-LaneSpec = tuple[str, list[tuple[float, float]], float, float, float]
-"""(lane id, centre-line shape, width, speed limit, SUMO lane length)."""
 
 
 def build_geometry(

@@ -6,11 +6,13 @@ calling this never changes the global matplotlib state of the caller.
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path
+from sumo_scenarios.net import DEFAULT_LANE_WIDTH, lane_widths
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -22,7 +24,6 @@ GROUP_STYLES = {  # realism.py's vehicle group -> (legend label, colour)
     "overtakers": ("overtaker (learned)", "tab:orange"),
 }
 SUMO_CAR = ("SUMO car", "tab:gray")
-SUMO_LANE_WIDTH = 3.2  # SUMO's default; FCD does not record lane widths
 # Longitudinal column -> axis label. FCD `distance` is SUMO's linear referencing: a road
 # position only on nets whose edges carry kilometrage (else the position on the current edge).
 ALONG_LABELS = {
@@ -40,7 +41,7 @@ def plot_fcd(
     out: Path,
     *,
     title: str = "",
-    lane_width: float = SUMO_LANE_WIDTH,
+    lane_width: float = DEFAULT_LANE_WIDTH,  # FCD does not record lane widths
     net: Path | None = None,
 ) -> None:
     """Time-space diagram and lateral position over time, one line per vehicle, as PNG.
@@ -103,17 +104,12 @@ def _along_column(df: pd.DataFrame) -> str:
 
 def _lane_widths(net: Path) -> dict[str, float]:
     """Lane id -> width of every lane in a SUMO net, internal (junction) lanes included."""
-    import xml.sax
-
-    import sumolib
-
     if not net.is_file():
         raise BehaveError(f"net file not found: {net}")
     try:
-        road = sumolib.net.readNet(str(net), withInternal=True)
-    except (xml.sax.SAXException, ValueError, KeyError) as err:
+        widths = lane_widths(net)
+    except (ET.ParseError, OSError, ValueError, EOFError) as err:
         raise BehaveError(f"{net} is not a SUMO net ({err})") from None
-    widths = {lane.getID(): lane.getWidth() for edge in road.getEdges() for lane in edge.getLanes()}
     if not widths:
         raise BehaveError(f"{net} is not a SUMO net (no lanes)")
     return widths

@@ -1,7 +1,7 @@
 """Write plain SUMO XML (nodes, edges, connections, routes, vTypes) and run netconvert.
 
 Only the standard library is imported here so that importing `sumo_scenarios` stays cheap;
-netconvert is located lazily through `behaviors.sumo_home`.
+netconvert is located lazily through `sumo_scenarios.sumo_home`.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from dataclasses import dataclass, replace
 from itertools import pairwise
 from pathlib import Path
 
-from behaviors.errors import BehaveError
-from behaviors.sumo_home import sumo_binary
+from sumo_scenarios.errors import BehaveError
+from sumo_scenarios.sumo_home import sumo_binary
 
 Point = tuple[float, float]
 

@@ -27,9 +27,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from behaviors.errors import BehaveError
-from behaviors.sumo_home import sumo_binary
 from sumo_scenarios.build import NETCONVERT_OPTIONS, EdgeSpec, Point, fmt, fmt_shape, write_nodes, write_xml
+from sumo_scenarios.errors import BehaveError
+from sumo_scenarios.sumo_home import sumo_binary
 
 SPACING = 5.0
 """Metres between shape points along a curve."""
