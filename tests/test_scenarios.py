@@ -24,6 +24,7 @@ from sumo_scenarios import (
     scenario_info,
     training_roads,
 )
+from sumo_scenarios.net import lane_widths
 
 EXPECTED = {"ring": (3, 3.5), "highway": (3, 3.5), "tiny": (2, 3.2)}
 DT = 0.1
@@ -61,6 +62,27 @@ def test_bundled_scenario_lanes_and_width(name: str) -> None:
     assert (info.lanes, info.lane_width_m, info.edges) == (lanes, width, len(edges))
     assert info.looping == (name == "ring")
     assert set(route_edges(scenario)) == {e.getID() for e in edges}
+
+
+@pytest.mark.parametrize(
+    "scenario", [get_scenario(n) for n in SCENARIO_NAMES] + training_roads(ramps=True), ids=lambda s: s.name
+)
+def test_the_streaming_net_reader_agrees_with_sumolib(scenario: Scenario) -> None:
+    """sumo_scenarios.net (the one reader) against sumolib's object model: every lane's width, and
+    the route's length over the mean lane lengths of its edges and of the junctions between them."""
+    net = sumolib.net.readNet(str(scenario.net), withInternal=True)
+    assert lane_widths(scenario.net) == {
+        ln.getID(): ln.getWidth() for e in net.getEdges() for ln in e.getLanes()
+    }
+
+    def mean_length(edge: sumolib.net.edge.Edge) -> float:
+        return sum(ln.getLength() for ln in edge.getLanes()) / edge.getLaneNumber()
+
+    route = [net.getEdge(e) for e in route_edges(scenario)]
+    hops = zip(route, route[1:] + route[:1] if scenario.looping else route[1:], strict=False)
+    vias = [c.getViaLaneID() for a, b in hops for c in a.getConnections(b)[:1]]
+    length = sum(map(mean_length, route)) + sum(mean_length(net.getLane(v).getEdge()) for v in vias if v)
+    assert scenario_info(scenario).length_m == length
 
 
 def test_ring_is_a_closed_three_km_loop_with_lane_to_lane_connections() -> None:
