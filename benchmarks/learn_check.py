@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 from common import meets_lanekeeping_bar, numbered_checkpoints
 
-from behaviors.ddpg.checkpoint import load_actor
-from behaviors.evaluate import actor_policy, evaluate
+from behaviors.evaluate import evaluate
 from behaviors.metrics import mean_rows
+from behaviors.policy import load_policy
 from behaviors.train import TrainConfig, prepare_run
 
 
@@ -75,7 +75,7 @@ def main() -> None:
     for episodes, path in numbered_checkpoints(out):
         if episodes == 0:
             continue
-        scan_rows = evaluate(env_config, actor_policy(load_actor(path)), args.scan_episodes, seed=args.seed)
+        scan_rows = evaluate(env_config, load_policy(path).act, args.scan_episodes, seed=args.seed)
         scan, lost = mean_rows(scan_rows), sum(r["off_tracks"] for r in scan_rows)
         print(
             f"checkpoint {episodes:4d}: colliding {scan['colliding_steps_pct']:.2f}%  "
@@ -84,8 +84,9 @@ def main() -> None:
         if meets_lanekeeping_bar(scan):
             reached = episodes
             break
-    actor = load_actor(out / "checkpoints" / "final.pt", expect_obs_dim=env_config.obs_size)
-    results = evaluate(env_config, actor_policy(actor), args.eval_episodes, seed=args.seed)
+    results = evaluate(
+        env_config, load_policy(out / "checkpoints" / "final.pt").act, args.eval_episodes, seed=args.seed
+    )
     mean = mean_rows(results)
     print()
     print(f"run directory           {out}")

@@ -35,7 +35,6 @@ from behaviors.env import BehaveEnv, EnvConfig
 from behaviors.errors import BehaveError
 from behaviors.evaluate import (
     EvaluationPlan,
-    checkpoint_policy,
     evaluate,
     realism_markdown,
     run_plan,
@@ -43,6 +42,7 @@ from behaviors.evaluate import (
 )
 from behaviors.files import atomic_write_text, ensure_writable_dir
 from behaviors.metrics import mean_rows
+from behaviors.policy import load_policy
 from behaviors.realism import SKIP_S
 from behaviors.train import TrainConfig, prepare_run
 
@@ -227,8 +227,7 @@ class Cache:
 
 
 def fresh_rows(env: EnvConfig, policy_path: Path, episodes: int, seed: int) -> dict[str, float]:
-    policy = checkpoint_policy(policy_path, env.obs_size)
-    return mean_rows(evaluate(env, policy, episodes, seed))
+    return mean_rows(evaluate(env, load_policy(policy_path).act, episodes, seed))
 
 
 def fits(config: EnvConfig) -> str | None:
