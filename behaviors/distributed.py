@@ -139,15 +139,18 @@ def ray_workers(address: str | None, setup: WorkerSetup, count: int) -> Iterator
         ray.shutdown()  # ends this run's workers (a cluster keeps running)
 
 
-def start_ray(address: str | None, workers: int) -> Any:
-    """Ray, local (as many CPUs as workers at least) or the cluster at `address`."""
+def start_ray(address: str | None, workers: int, *, log_to_driver: bool = True) -> Any:
+    """Ray, local (as many CPUs as workers at least) or the cluster at `address`; `log_to_driver=False`
+    leaves the workers' output in Ray's logs."""
     try:
         import ray
     except ImportError:
         raise BehaveError(INSTALL_HINT) from None
     if address is not None:
         check_reachable(address)
-    options: dict[str, Any] = {"include_dashboard": False, "logging_level": logging.WARNING}
+    options: dict[str, Any] = {
+        "include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": log_to_driver,
+    }  # fmt: skip
     if address is None:
         options |= {"num_cpus": max(workers, os.cpu_count() or 1), "object_store_memory": OBJECT_STORE_BYTES}
     try:

@@ -14,7 +14,7 @@ from typing import NoReturn
 import typer
 from typer import _click as click
 
-from behaviors.cli import evaluate, export, populate, report, scenario, train
+from behaviors.cli import evaluate, export, populate, report, scenario, sweep, train
 from behaviors.cli.group import QuickHelpGroup
 from behaviors.errors import BehaveError
 
@@ -33,6 +33,7 @@ app.command("export")(export.export_command)
 app.command("plot")(export.plot_command)
 app.command("evaluate")(evaluate.evaluate_command)
 app.command("report")(report.report_command)
+app.command("sweep")(sweep.sweep_command)
 
 
 EXIT_CODES: dict[int, int] = {signal.SIGINT: 130, signal.SIGTERM: 143}

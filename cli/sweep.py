@@ -1,0 +1,114 @@
+"""`behave sweep`: populate runs over a grid of shares, seeds, policies and scenarios, on Ray, into one
+table (sweep.csv/.parquet) and one plot (sweep.png)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED_MAX, check_number
+from behaviors.errors import BehaveError
+
+
+def parse_numbers(name: str, text: str | None, *, integer: bool, high: float | None = None) -> tuple | None:
+    """A comma-separated list of numbers (None: not given), each checked as the option's range says."""
+    if text is None:
+        return None
+    kind = int if integer else float
+    try:
+        values = [kind(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        what = "integers" if integer else "numbers"
+        raise BehaveError(f"{name} must be a comma-separated list of {what}, got '{text}'") from None
+    if not values:
+        raise BehaveError(f"{name} names no value: '{text}'")
+    return tuple(check_number(name, value, high=high) for value in values)
+
+
+def sweep_command(
+    sumocfg: Annotated[
+        list[Path] | None,
+        typer.Option(help="a SUMO scenario whose passenger cars become agents by --share (repeatable)"),
+    ] = None,
+    net: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="a .net.xml or a bundled scenario's name (highway, tiny, ...) with --overtakers/--keepers "
+            "agents among --background SUMO cars (repeatable)"
+        ),
+    ] = None,
+    share: Annotated[
+        str, typer.Option(help="with --sumocfg: shares of passenger cars that become agents, e.g. 0,0.25,0.5")
+    ] = "0",
+    seeds: Annotated[str, typer.Option(help="seeds, e.g. 0,1,2: each point runs once per seed")] = "0",
+    policy: Annotated[
+        list[str] | None,
+        typer.Option(help="a policy as populate takes it (repeatable) [default: traffic]"),
+    ] = None,
+    overtakers: Annotated[
+        str | None, typer.Option(help="learned overtakers, e.g. 0,2,4 [default: 4 on a net, 0 on a sumocfg]")
+    ] = None,
+    keepers: Annotated[
+        str | None, typer.Option(help="learned lane keepers, e.g. 0,4 [default: 4 on a net, 0 on a sumocfg]")
+    ] = None,
+    background: Annotated[
+        int | None,
+        typer.Option(help="SUMO's own cars on a net [default: 20, 0 on a sumocfg]", callback=NON_NEGATIVE),
+    ] = None,
+    overtaker_fraction: Annotated[
+        float, typer.Option(help="of the agents from --share, the fraction that are overtakers")
+    ] = 0.5,
+    duration: Annotated[
+        float | None,
+        typer.Option(help="simulated seconds [default: 180, or the sumocfg's end-begin]", callback=POSITIVE),
+    ] = None,
+    step_length: Annotated[
+        float | None,
+        typer.Option(help="seconds per step [default 0.2, or the sumocfg's]", callback=POSITIVE),
+    ] = None,
+    shield: Annotated[bool, typer.Option(help="the safety shield, as populate")] = True,
+    workers: Annotated[
+        int | None,
+        typer.Option(help="runs at once, each a Ray task with its own SUMO [default: this machine's cores]"),
+    ] = None,
+    ray_address: Annotated[
+        str | None, typer.Option(help="a Ray cluster (HEAD_IP:6379) instead of a local Ray")
+    ] = None,
+    out: Annotated[Path, typer.Option(help="the sweep folder (run again to resume)")] = Path("runs/sweep"),
+    keep_fcd: Annotated[bool, typer.Option(help="keep each run's FCD and agents table in OUT/fcd/")] = False,
+) -> None:
+    """Populate runs over a grid (shares x seeds x policies x scenarios) in parallel on Ray: one row per
+    run in <out>/sweep.csv and .parquet, the main figures against the share in sweep.png."""
+    from behaviors.sweep import Grid, check_grid, resolve_net, resolve_sumocfg, run_sweep
+
+    workers = workers if workers is not None else os.cpu_count() or 1
+    check_number("--workers", workers, low=1)
+    check_number("--overtaker-fraction", overtaker_fraction, high=1)
+    grid = Grid(
+        sumocfgs=tuple(resolve_sumocfg(str(path)) for path in sumocfg or ()),
+        nets=tuple(resolve_net(name) for name in net or ()),
+        shares=parse_numbers("--share", share, integer=False, high=1),  # type: ignore[arg-type]
+        seeds=parse_numbers("--seeds", seeds, integer=True, high=SEED_MAX),  # type: ignore[arg-type]
+        policies=tuple(policy or ("traffic",)),
+        overtakers=parse_numbers("--overtakers", overtakers, integer=True),
+        keepers=parse_numbers("--keepers", keepers, integer=True),
+        background=background, overtaker_fraction=overtaker_fraction, duration=duration,
+        step_length=step_length, shield=shield,
+    )  # fmt: skip
+    points = check_grid(grid)
+    result = run_sweep(
+        points, out, workers=workers, address=ray_address, keep_fcd=keep_fcd,
+        on_event=lambda text: typer.echo(f"sweep: {text}", err=True),
+    )  # fmt: skip
+    table = result.table
+    shown = [c for c in ("id", "status", "all_mean_speed", "sumo_mean_speed", "collisions") if c in table]
+    typer.echo(table[shown].to_string(index=False, float_format=lambda v: f"{v:.2f}"))
+    for path in result.outputs:
+        typer.echo(f"wrote {path}")
+    failed = int((table["status"] != "ok").sum())
+    if failed:
+        typer.echo(f"behave: {failed} of {len(table)} runs failed (their error is in the table)", err=True)
+        raise typer.Exit(1)
