@@ -1,0 +1,228 @@
+"""`behave sweep` (issue 25): a grid of populate runs on Ray, one row per run, resumable.
+
+One sweep (share {0, 0.25, 0.5} x seeds {0, 1} on a user's sumocfg, 2 workers) is shared by the
+tests: before it, one point is run alone (its row written as a finished run's) and another is left
+as a failed run, as a sweep killed half-way leaves them; the sweep must run only the other points.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from behaviors.export import fcd_options
+from behaviors.sim import COLLISION_OPTIONS
+from behaviors.sumo_home import sumo_binary
+from behaviors.sweep import (
+    FAILED,
+    OK,
+    WALL_COLUMNS,
+    Grid,
+    Point,
+    SweepResult,
+    check_grid,
+    compared,
+    expand,
+    failed_row,
+    fcd_figures,
+    finished,
+    gather,
+    row_path,
+    run_point,
+    run_sweep,
+    save_files,
+    write_row,
+)
+from sumo_scenarios.osm_like import Demand, build_osm_like
+
+pytest.importorskip("ray", reason="ray is not installed (the distributed extra)")
+
+SHARES = (0.0, 0.25, 0.5)
+SEEDS = (0, 1)
+STEP = 0.2  # populate's step where the sumocfg sets none
+DEMAND = Demand(end=45.0, scale=1.0, sigma=0.5)
+
+
+def same(a: dict, b: dict) -> bool:
+    """Rows equal value for value (nan equal to nan), wall-clock columns left out."""
+    a, b = compared(a), compared(b)
+    if a.keys() != b.keys():
+        return False
+    return all(a[k] == b[k] or (pd.isna(a[k]) and pd.isna(b[k])) for k in a)
+
+
+@pytest.fixture(scope="module")
+def scenario(tmp_path_factory) -> Path:
+    return build_osm_like("motorway3", tmp_path_factory.mktemp("net"), DEMAND).sumocfg.resolve()
+
+
+@pytest.fixture(scope="module")
+def swept(scenario, tmp_path_factory) -> tuple[SweepResult, Path, dict]:
+    """The shared sweep, resumed from a folder holding one finished and one failed run."""
+    out = tmp_path_factory.mktemp("sweep")
+    points = check_grid(Grid(sumocfgs=(str(scenario),), shares=SHARES, seeds=SEEDS))
+    alone = run_point(points[3])  # share 0.25, seed 1: ran before the sweep was killed
+    write_row(out, alone.row)
+    write_row(out, failed_row(points[4], "killed"))  # share 0.5, seed 0: failed (or never ended)
+    result = run_sweep(points, out, workers=2)
+    return result, out, alone.row
+
+
+def test_the_grid_is_every_combination_once_in_a_fixed_order(scenario):
+    grid = Grid(
+        sumocfgs=(str(scenario), str(scenario)), shares=(0.5, 0.0, 0.5), seeds=(1, 0), policies=("a", "b")
+    )
+    points = expand(grid)
+    assert len(points) == 2 * 2 * 2
+    assert [(p.policy, p.share, p.seed) for p in points[:4]] == [("a", 0.5, 1), ("a", 0.5, 0), ("a", 0.0, 1),
+                                                                   ("a", 0.0, 0)]  # fmt: skip
+    assert len({p.id for p in points}) == len(points)
+    assert points[0].id == expand(grid)[0].id  # the id is the settings', nothing else
+    nets = expand(Grid(nets=("n.net.xml",), overtakers=(0, 2), keepers=(4,), seeds=(0,)))
+    assert [(p.overtakers, p.keepers, p.background, p.kind) for p in nets] == [
+        (0, 4, 20, "net"),
+        (2, 4, 20, "net"),
+    ]
+
+
+def test_a_sweep_of_3_shares_by_2_seeds_on_2_workers_ends_with_6_rows(swept):
+    result, out, _ = swept
+    table = result.table
+    assert len(table) == 6 and (table["status"] == OK).all(), table[["id", "status", "error"]]
+    assert sorted(zip(table["share"], table["seed"], strict=True)) == [(s, k) for s in SHARES for k in SEEDS]
+    for name in ("sweep.csv", "sweep.parquet", "sweep.png"):
+        assert (out / name).stat().st_size > 0
+    pd.testing.assert_frame_equal(pd.read_parquet(out / "sweep.parquet"), table)
+    assert len(pd.read_csv(out / "sweep.csv")) == 6
+    assert list(table.columns[-len(WALL_COLUMNS) :]) == list(WALL_COLUMNS)
+    agents = table.set_index("share")["of_them_agents"]
+    assert (agents[0.0] == 0).all() and (agents[0.5] > 0).all()
+    assert {"realism_sumo_thw_median", "realism_keepers_lane_changes_per_km", "sumo_mean_speed"} <= set(table)
+    # no FCD unless asked: only rows and the table are left, no temp files
+    assert sorted(p.name for p in out.iterdir()) == ["runs", "sweep.csv", "sweep.parquet", "sweep.png"]
+    assert len(list((out / "runs").iterdir())) == 6
+
+
+def test_a_resumed_sweep_runs_only_the_missing_points(swept):
+    result, out, alone = swept
+    assert (result.skipped, result.ran, result.failed) == (1, 5, 0)
+    kept = json.loads(row_path(out, alone["id"]).read_text())
+    assert kept["wall_s"] == alone["wall_s"]  # the finished run's row was not run again
+    points = expand(Grid(sumocfgs=(kept["scenario_path"],), shares=SHARES, seeds=SEEDS))
+    assert finished(out, points) == {p.id for p in points}
+    again = run_sweep(points, out, workers=2)  # nothing left: no Ray is started
+    assert (again.ran, again.skipped) == (0, 6)
+
+
+def test_the_share_0_rows_are_a_plain_sumo_runs_figures(swept, scenario, tmp_path):
+    table = swept[0].table
+    for seed in SEEDS:
+        fcd = tmp_path / f"plain{seed}.parquet"
+        subprocess.run(
+            [sumo_binary("sumo"), "-c", str(scenario), "--seed", str(seed), "--step-length", str(STEP),
+             "--lateral-resolution", "0.8", "--no-step-log", "true", *COLLISION_OPTIONS,
+             *fcd_options(fcd, geo=False)],
+            check=True, capture_output=True,
+        )  # fmt: skip
+        plain = fcd_figures(fcd, Path(str(scenario).replace(".sumocfg", ".net.xml")))
+        row = table[(table["share"] == 0.0) & (table["seed"] == seed)].iloc[0].to_dict()
+        assert plain["sumo_vehicles"] > 10 and row["agent_steps"] == 0 and row["collisions"] == 0
+        assert same({k: row[k] for k in plain}, plain)
+
+
+def test_a_point_run_alone_gives_the_row_it_got_on_a_worker(swept, tmp_path):
+    table = swept[0].table
+    row = table[(table["share"] == 0.5) & (table["seed"] == 1)].iloc[0]
+    point = Point(row["scenario_path"], "sumocfg", "traffic", 0.5, 1, 0, 0, 0)
+    assert point.id == row["id"]
+    alone = run_point(point, keep_fcd=True)
+    stored = json.loads(json.dumps(alone.row))  # through JSON, as the sweep stores its rows
+    assert same(stored, {k: row[k] for k in stored})
+    assert row.drop(list(stored)).isna().all()  # the table's other columns are other rows' (none here)
+    # and `behave populate` of the same point writes the FCD those figures came from
+    fcd = tmp_path / "populate.parquet"
+    subprocess.run(
+        [sys.executable, "-m", "behaviors.cli", "populate", "--sumocfg", row["scenario_path"],
+         "--share", "0.5", "--seed", "1", "--fcd", str(fcd)],
+        check=True, capture_output=True, env=os.environ | {"COLUMNS": "200"},
+    )  # fmt: skip
+    assert fcd.read_bytes() == alone.fcd
+    figures = fcd_figures(fcd, Path(row["scenario_path"].replace(".sumocfg", ".net.xml")))
+    assert same(figures, {k: row[k] for k in figures})
+    save_files(tmp_path / "kept", alone)  # --keep-fcd: the run's FCD and agents table in fcd/
+    kept = sorted(p.name for p in (tmp_path / "kept" / "fcd").iterdir())
+    assert kept == [f"{point.id}.agents.csv", f"{point.id}.parquet"]
+
+
+def test_a_failed_run_is_a_row_with_its_error_and_the_others_go_on(scenario, tmp_path):
+    """Through the command line: one scenario SUMO cannot load beside a good one."""
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "demand.rou.xml").write_text(
+        '<routes><vehicle id="v" depart="0"><route edges="nowhere"/></vehicle></routes>'
+    )
+    cfg = bad / "bad.sumocfg"
+    cfg.write_text(
+        f'<configuration><input><net-file value="{str(scenario).replace(".sumocfg", ".net.xml")}"/>'
+        '<route-files value="demand.rou.xml"/></input><time><end value="20"/></time></configuration>'
+    )
+    out = tmp_path / "sweep"
+    result = subprocess.run(
+        [sys.executable, "-m", "behaviors.cli", "sweep", "--sumocfg", str(scenario), "--sumocfg", str(cfg),
+         "--share", "0.25", "--duration", "15", "--workers", "2", "--out", str(out), "--keep-fcd"],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert result.returncode == 1, result.stderr
+    assert "1 of 2 runs failed" in result.stderr and "Traceback" not in result.stderr
+    table = gather(out)
+    assert list(table["status"]) == [FAILED, OK]  # sorted by scenario: bad.sumocfg first
+    assert "nowhere" in table["error"].iloc[0]
+    assert len(list((out / "fcd").glob("*.parquet"))) == 1  # --keep-fcd keeps the finished run's FCD
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--share", "0,1.5"], "--share must be a finite number >= 0 and <= 1"),
+        (["--seeds", "0,x"], "--seeds must be a comma-separated list of integers"),
+        (["--seeds", "-1"], "--seeds must be a finite number >= 0"),
+        (["--workers", "0"], "--workers must be a finite number >= 1"),
+        (["--policy", "nothing-like-it"], "nothing-like-it"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(scenario, tmp_path, args, message):
+    result = subprocess.run(
+        [sys.executable, "-m", "behaviors.cli", "sweep", "--sumocfg", str(scenario), *args, "--out",
+         str(tmp_path / "out")],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("behave: error: ") and message in lines[0], lines
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--sumocfg", "missing.sumocfg"], "sumocfg not found: missing.sumocfg"),
+        (
+            ["--net", "highway", "--share", "0.5"],
+            "--share converts a scenario's own cars: it needs --sumocfg",
+        ),
+        ([], "nothing to sweep: give --sumocfg or --net"),
+        (["--net", "nowhere"], "net not found: nowhere"),
+    ],
+)
+def test_bad_scenarios_are_one_line_and_exit_2(tmp_path, args, message):
+    result = subprocess.run(
+        [sys.executable, "-m", "behaviors.cli", "sweep", *args], capture_output=True, text=True, cwd=tmp_path
+    )
+    assert result.returncode == 2 and result.stderr.startswith(f"behave: error: {message}"), result.stderr
+    assert result.stderr.count("\n") == 1
