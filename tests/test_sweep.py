@@ -226,3 +226,13 @@ def test_bad_scenarios_are_one_line_and_exit_2(tmp_path, args, message):
     )
     assert result.returncode == 2 and result.stderr.startswith(f"behave: error: {message}"), result.stderr
     assert result.stderr.count("\n") == 1
+
+
+def test_help_loads_nothing_heavy():
+    probe = (
+        "import sys\nfrom behaviors.cli.main import main\nsys.argv = ['behave', 'sweep', '--help']\n"
+        "try:\n    main()\nexcept SystemExit:\n    pass\n"
+        "print(*(m for m in ('torch', 'pandas', 'matplotlib', 'libsumo', 'ray') if m in sys.modules))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert "Usage: behave sweep" in result.stdout and result.stdout.splitlines()[-1] == ""
