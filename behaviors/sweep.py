@@ -144,8 +144,8 @@ def expand(grid: Grid) -> list[Point]:
     """Every point of the grid, in a fixed order (scenario, policy, counts, share, seed); values given
     twice count once."""
     points: list[Point] = []
-    common = {"overtaker_fraction": grid.overtaker_fraction, "duration": grid.duration,
-              "step_length": grid.step_length, "shield": grid.shield}  # fmt: skip
+    common: dict[str, Any] = {"overtaker_fraction": grid.overtaker_fraction, "duration": grid.duration,
+                              "step_length": grid.step_length, "shield": grid.shield}  # fmt: skip
     scenarios = [(s, "sumocfg") for s in grid.sumocfgs] + [(n, "net") for n in grid.nets]
     for (scenario, kind), policy in itertools.product(_unique(scenarios), _unique(grid.policies)):
         default = NET_DEFAULTS if kind == "net" else dict.fromkeys(NET_DEFAULTS, 0)
@@ -175,19 +175,14 @@ def check_grid(grid: Grid) -> list[Point]:
         if not values:
             raise BehaveError(f"{name} names no value")
     points = expand(grid)
-    from behaviors.populate import populate_policy  # torch: only once the options are checked
+    from behaviors.policy import load_policy  # torch: only once the options are checked
+    from behaviors.populate import check_fits
 
-    checked: set[tuple[str, str]] = set()
-    for point in points:
-        if (point.scenario, point.policy) in checked:
-            continue
-        most = Point(**{**asdict(point), "share": max(grid.shares) if point.kind == "sumocfg" else 0.0})
-        config = most.config(Path(tempfile.gettempdir()) / "check.parquet")
+    policies = {spec: load_policy(Path(spec)) for spec in _unique(grid.policies)}
+    for point in points:  # every share and count: what the policy must drive, what the config holds
+        config = point.config(Path(tempfile.gettempdir()) / "check.parquet")
         config.validate()
-        populate_policy(config)
-        checked.add((point.scenario, point.policy))
-    for point in points:  # every share and count, without loading anything
-        point.config(Path(tempfile.gettempdir()) / "check.parquet").validate()
+        check_fits(config, policies[point.policy])
     return points
 
 
@@ -306,6 +301,9 @@ def flow_figures(df: pd.DataFrame) -> dict[str, float]:
         out[f"{name}_travel_time_mean_s"] = float(travel) if n_left else math.nan
         out[f"{name}_throughput_per_h"] = n_left / span * 3600 if span > 0 else math.nan
         out[f"{name}_stops_per_vehicle"] = float(stops.reindex(cars).sum() / n) if n else math.nan
+    out["agents_share_of_vehicles"] = (
+        out["agents_vehicles"] / out["all_vehicles"] if len(per_car) else math.nan
+    )
     return out
 
 
@@ -338,7 +336,7 @@ def ok_row(point: Point, summary: dict[str, Any], figures: dict[str, float]) -> 
     """A finished run's row: settings, status, populate's summary (wall-clock figures apart, at the
     end), its FCD's flow and realism figures."""
     summary = SUMMARY_FILL | dict(summary)
-    wall = {key: summary.pop(key) for key in ("wall_s", "real_time_factor") if key in summary}
+    wall: dict[str, Any] = {key: summary.pop(key) for key in ("wall_s", "real_time_factor") if key in summary}
     summary.pop("phases", None)
     return {**point.settings(), "status": OK, "error": "", **summary, **figures, **wall,
             "host": socket.gethostname()}  # fmt: skip
@@ -409,8 +407,13 @@ def write_table(out: Path, table: pd.DataFrame) -> list[Path]:
     return [csv, parquet]
 
 
+LINE_SETTINGS = ("background", "overtaker_fraction", "duration_s", "step_length_s", "shield")
+"""Settings that make a line of their own in the plot when the table holds more than one value (on a
+net the counts are the x axis)."""
+
+
 def plot_table(table: pd.DataFrame, path: Path) -> Path | None:
-    """The main figures against the share (on a net: the agents' share of the vehicles), per scenario
+    """The main figures against the share (on a net: agents / (agents + background cars)), per scenario
     and policy: the mean over seeds as a line, the range as a band, each run as a dot."""
     import matplotlib
 
@@ -420,18 +423,20 @@ def plot_table(table: pd.DataFrame, path: Path) -> Path | None:
     ok = table[table["status"] == OK].copy()
     if ok.empty:
         return None
-    share_of_vehicles = ok["agents_vehicles"] / ok["all_vehicles"].where(ok["all_vehicles"] > 0)
-    ok["x"] = ok["share"].where(ok["kind"] == "sumocfg", share_of_vehicles)
+    agents = ok["overtakers"] + ok["keepers"]
+    ok["x"] = ok["share"].where(ok["kind"] == "sumocfg", agents / (agents + ok["background"]))
+    lines = ["scenario", "policy", *(c for c in LINE_SETTINGS if ok[c].nunique(dropna=False) > 1)]
     fig, axes = plt.subplots(2, 3, figsize=(13, 7), squeeze=False)
-    for ax, (column, label) in zip(axes.flat, PLOTTED, strict=True):
-        for (scenario, policy), runs in ok.groupby(["scenario", "policy"], sort=True):
+    for ax, (column, title) in zip(axes.flat, PLOTTED, strict=True):
+        for key, runs in ok.groupby(lines, sort=True, dropna=False):
             if column not in runs:
                 continue
             spread = runs.groupby("x")[column].agg(["mean", "min", "max"]).sort_index()
-            line = ax.plot(spread.index, spread["mean"], marker="o", label=f"{scenario}, {Path(policy).stem}")
+            label = ", ".join(short(k, v) for k, v in zip(lines, key, strict=True))
+            line = ax.plot(spread.index, spread["mean"], marker="o", label=label)
             ax.fill_between(spread.index, spread["min"], spread["max"], alpha=0.2, color=line[0].get_color())
             ax.scatter(runs["x"], runs[column], s=8, color=line[0].get_color(), alpha=0.6)
-        ax.set_title(label, fontsize=10)
+        ax.set_title(title, fontsize=10)
         ax.set_xlabel("share of learned drivers")
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=8)
@@ -442,6 +447,11 @@ def plot_table(table: pd.DataFrame, path: Path) -> Path | None:
         fig.savefig(tmp, format="png", dpi=100)
     plt.close(fig)
     return Path(path)
+
+
+def short(setting: str, value: Any) -> str:
+    """A plot label's part: a scenario's or policy's file name without suffixes, else `setting=value`."""
+    return Path(str(value)).name.split(".")[0] if setting in ("scenario", "policy") else f"{setting}={value}"
 
 
 def save_files(out: Path, result: RunResult) -> None:
@@ -493,7 +503,7 @@ def run_sweep(
         ray = start_ray(address, workers, log_to_driver=False)
         try:
             task = ray.remote(num_cpus=1, max_retries=0)(run_point)
-            waiting, running = list(todo), {}
+            waiting, running = list(todo), dict[Any, Point]()
             while waiting or running:
                 while waiting and len(running) < workers:
                     point = waiting.pop(0)
