@@ -22,8 +22,10 @@ import hashlib
 import itertools
 import json
 import math
+import signal
 import socket
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
@@ -449,6 +451,21 @@ def plot_table(table: pd.DataFrame, path: Path) -> Path | None:
     return Path(path)
 
 
+def keep_signal_handlers(start: Callable[[], Any]) -> Any:
+    """`start()` with this process's SIGTERM and SIGINT handlers kept: Ray's driver installs its own,
+    which print a stack dump and end the process; behave's stop cleanly (exit 143 / 130) and the
+    finished runs' rows stay."""
+    if threading.current_thread() is not threading.main_thread():
+        return start()
+    kept = {signum: signal.getsignal(signum) for signum in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        return start()
+    finally:
+        for signum, handler in kept.items():
+            if handler is not None:
+                signal.signal(signum, handler)
+
+
 def short(setting: str, value: Any) -> str:
     """A plot label's part: a scenario's or policy's file name without suffixes, else `setting=value`."""
     return Path(str(value)).name.split(".")[0] if setting in ("scenario", "policy") else f"{setting}={value}"
@@ -500,7 +517,7 @@ def run_sweep(
     if todo:
         from behaviors.distributed import start_ray
 
-        ray = start_ray(address, workers, log_to_driver=False)
+        ray = keep_signal_handlers(lambda: start_ray(address, workers, log_to_driver=False))
         try:
             task = ray.remote(num_cpus=1, max_retries=0)(run_point)
             waiting, running = list(todo), dict[Any, Point]()

@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
@@ -62,16 +65,54 @@ def scenario(tmp_path_factory) -> Path:
     return build_osm_like("motorway3", tmp_path_factory.mktemp("net"), DEMAND).sumocfg.resolve()
 
 
+@dataclass(frozen=True)
+class Swept:
+    result: SweepResult  # of the sweep that finished the grid
+    out: Path
+    alone: dict  # the row of the point run alone before the sweep
+    killed: subprocess.CompletedProcess  # the `behave sweep` stopped by SIGTERM half-way
+    before: set[str]  # the points finished when the sweep started again
+
+
+def sweep_killed_half_way(scenario: Path, out: Path, points: list[Point]) -> subprocess.CompletedProcess:
+    """`behave sweep` of the grid, sent SIGTERM once it has finished one run of its own."""
+    args = [
+        sys.executable,
+        "-m",
+        "behaviors.cli",
+        "sweep",
+        "--sumocfg",
+        str(scenario),
+        "--share",
+        ",".join(map(str, SHARES)),
+        "--seeds",
+        ",".join(map(str, SEEDS)),
+        "--workers",
+        "2",
+        "--out",
+        str(out),
+    ]
+    process = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    deadline = time.monotonic() + 120
+    while len(finished(out, points)) < 2 and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.1)
+    process.send_signal(signal.SIGTERM)
+    stdout, stderr = process.communicate(timeout=60)
+    return subprocess.CompletedProcess(args, process.returncode, stdout, stderr)
+
+
 @pytest.fixture(scope="module")
-def swept(scenario, tmp_path_factory) -> tuple[SweepResult, Path, dict]:
-    """The shared sweep, resumed from a folder holding one finished and one failed run."""
+def swept(scenario, tmp_path_factory) -> Swept:
+    """The shared sweep: one point run alone and one failed run in its folder, then `behave sweep`
+    killed half-way, then the sweep started again."""
     out = tmp_path_factory.mktemp("sweep")
     points = check_grid(Grid(sumocfgs=(str(scenario),), shares=SHARES, seeds=SEEDS))
-    alone = run_point(points[3])  # share 0.25, seed 1: ran before the sweep was killed
+    alone = run_point(points[3])  # share 0.25, seed 1
     write_row(out, alone.row)
-    write_row(out, failed_row(points[4], "killed"))  # share 0.5, seed 0: failed (or never ended)
-    result = run_sweep(points, out, workers=2)
-    return result, out, alone.row
+    write_row(out, failed_row(points[4], "SUMO crashed"))  # share 0.5, seed 0
+    killed = sweep_killed_half_way(scenario, out, points)
+    before = finished(out, points)
+    return Swept(run_sweep(points, out, workers=2), out, alone.row, killed, before)
 
 
 def test_the_grid_is_every_combination_once_in_a_fixed_order(scenario):
@@ -92,7 +133,7 @@ def test_the_grid_is_every_combination_once_in_a_fixed_order(scenario):
 
 
 def test_a_sweep_of_3_shares_by_2_seeds_on_2_workers_ends_with_6_rows(swept):
-    result, out, _ = swept
+    result, out = swept.result, swept.out
     table = result.table
     assert len(table) == 6 and (table["status"] == OK).all(), table[["id", "status", "error"]]
     assert sorted(zip(table["share"], table["seed"], strict=True)) == [(s, k) for s in SHARES for k in SEEDS]
@@ -109,19 +150,23 @@ def test_a_sweep_of_3_shares_by_2_seeds_on_2_workers_ends_with_6_rows(swept):
     assert len(list((out / "runs").iterdir())) == 6
 
 
-def test_a_resumed_sweep_runs_only_the_missing_points(swept):
-    result, out, alone = swept
-    assert (result.skipped, result.ran, result.failed) == (1, 5, 0)
-    kept = json.loads(row_path(out, alone["id"]).read_text())
-    assert kept["wall_s"] == alone["wall_s"]  # the finished run's row was not run again
+def test_a_killed_sweep_started_again_runs_only_the_missing_points(swept):
+    killed, result, out = swept.killed, swept.result, swept.out
+    assert killed.returncode == 143, killed.stderr
+    assert killed.stderr.splitlines()[-1] == "behave: error: terminated; nothing was left half-written"
+    assert "sweep: 6 runs: 1 finished before, 5 to run on 2 workers" in killed.stderr  # the failed one again
+    assert 2 <= len(swept.before) < 6
+    assert (result.skipped, result.ran, result.failed) == (len(swept.before), 6 - len(swept.before), 0)
+    kept = json.loads(row_path(out, swept.alone["id"]).read_text())
+    assert kept["wall_s"] == swept.alone["wall_s"]  # the finished run's row was not run again
+    assert sorted(p.name for p in (out / "runs").iterdir()) == sorted(f"{i}.json" for i in result.table["id"])
     points = expand(Grid(sumocfgs=(kept["scenario_path"],), shares=SHARES, seeds=SEEDS))
-    assert finished(out, points) == {p.id for p in points}
     again = run_sweep(points, out, workers=2)  # nothing left: no Ray is started
     assert (again.ran, again.skipped) == (0, 6)
 
 
 def test_the_share_0_rows_are_a_plain_sumo_runs_figures(swept, scenario, tmp_path):
-    table = swept[0].table
+    table = swept.result.table
     for seed in SEEDS:
         fcd = tmp_path / f"plain{seed}.parquet"
         subprocess.run(
@@ -137,7 +182,7 @@ def test_the_share_0_rows_are_a_plain_sumo_runs_figures(swept, scenario, tmp_pat
 
 
 def test_a_point_run_alone_gives_the_row_it_got_on_a_worker(swept, tmp_path):
-    table = swept[0].table
+    table = swept.result.table
     row = table[(table["share"] == 0.5) & (table["seed"] == 1)].iloc[0]
     point = Point(row["scenario_path"], "sumocfg", "traffic", 0.5, 1, 0, 0, 0)
     assert point.id == row["id"]
