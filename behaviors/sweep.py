@@ -200,6 +200,11 @@ def resolve_net(spec: str) -> str:
     raise BehaveError(f"net not found: {spec} (a .net.xml or one of {', '.join(SCENARIO_NAMES)})")
 
 
+def resolve_policy(spec: str) -> str:
+    """A policy file or run directory as an absolute path (workers run elsewhere); a bundled name as is."""
+    return str(Path(spec).resolve()) if Path(spec).exists() else spec
+
+
 def resolve_sumocfg(spec: str) -> str:
     path = Path(spec)
     if not path.is_file():

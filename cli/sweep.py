@@ -82,7 +82,7 @@ def sweep_command(
 ) -> None:
     """Populate runs over a grid (shares x seeds x policies x scenarios) in parallel on Ray: one row per
     run in <out>/sweep.csv and .parquet, the main figures against the share in sweep.png."""
-    from behaviors.sweep import Grid, check_grid, resolve_net, resolve_sumocfg, run_sweep
+    from behaviors.sweep import Grid, check_grid, resolve_net, resolve_policy, resolve_sumocfg, run_sweep
 
     workers = workers if workers is not None else os.cpu_count() or 1
     check_number("--workers", workers, low=1)
@@ -92,7 +92,7 @@ def sweep_command(
         nets=tuple(resolve_net(name) for name in net or ()),
         shares=parse_numbers("--share", share, integer=False, high=1),  # type: ignore[arg-type]
         seeds=parse_numbers("--seeds", seeds, integer=True, high=SEED_MAX),  # type: ignore[arg-type]
-        policies=tuple(policy or ("traffic",)),
+        policies=tuple(resolve_policy(spec) for spec in policy or ("traffic",)),
         overtakers=parse_numbers("--overtakers", overtakers, integer=True),
         keepers=parse_numbers("--keepers", keepers, integer=True),
         background=background, overtaker_fraction=overtaker_fraction, duration=duration,
