@@ -22,6 +22,7 @@ import hashlib
 import itertools
 import json
 import math
+import os
 import signal
 import socket
 import tempfile
@@ -505,25 +506,31 @@ def run_sweep(
     points: Sequence[Point],
     out: Path,
     *,
-    workers: int,
+    workers: int | None = None,
     address: str | None = None,
     keep_fcd: bool = False,
     on_event: Callable[[str], None] | None = None,
 ) -> SweepResult:
-    """Run the points not finished yet, at most `workers` at a time, each as a Ray task (its own
-    process, its own SUMO); write each row as it comes back, then the table and the plot."""
+    """Run the points not finished yet, at most `workers` at a time (None: as many as Ray has CPUs),
+    each as a Ray task (its own process, its own SUMO); write each row as it comes back, then the
+    table and the plot."""
     out = Path(out)
     ensure_writable_dir(out / RUNS_DIR)
     done = finished(out, points)
     todo = [point for point in points if point.id not in done]
     say = on_event or (lambda text: None)
-    say(f"{len(points)} runs: {len(done)} finished before, {len(todo)} to run on {workers} workers")
     failures = 0
-    if todo:
+    if not todo:
+        say(f"{len(points)} runs: all {len(done)} finished before")
+    else:
         from behaviors.distributed import start_ray
 
-        ray = keep_signal_handlers(lambda: start_ray(address, workers, log_to_driver=False))
+        local = workers if workers is not None else os.cpu_count() or 1
+        ray = keep_signal_handlers(lambda: start_ray(address, local, log_to_driver=False))
         try:
+            if workers is None:  # as many at once as the machine or the cluster has CPUs
+                workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
+            say(f"{len(points)} runs: {len(done)} finished before, {len(todo)} to run on {workers} workers")
             task = ray.remote(num_cpus=1, max_retries=0)(run_point)
             waiting, running = list(todo), dict[Any, Point]()
             while waiting or running:
@@ -538,10 +545,9 @@ def run_sweep(
                     result = RunResult(failed_row(point, error_line(getattr(exc, "cause", None) or exc)))
                 save_files(out, result)
                 write_row(out, result.row)
-                status = (
-                    result.row["status"] if result.row["status"] == OK else f"failed: {result.row['error']}"
-                )
-                say(f"{point.id}: {status}")
+                ok = result.row["status"] == OK
+                failures += not ok
+                say(f"{point.id}: {OK if ok else 'failed: ' + result.row['error']}")
         finally:
             ray.shutdown()
     table = gather(out)

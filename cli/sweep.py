@@ -3,7 +3,6 @@ table (sweep.csv/.parquet) and one plot (sweep.png)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Annotated
 
@@ -72,7 +71,7 @@ def sweep_command(
     shield: Annotated[bool, typer.Option(help="the safety shield, as populate")] = True,
     workers: Annotated[
         int | None,
-        typer.Option(help="runs at once, each a Ray task with its own SUMO [default: this machine's cores]"),
+        typer.Option(help="runs at once, each a Ray task with its own SUMO [default: Ray's CPUs]"),
     ] = None,
     ray_address: Annotated[
         str | None, typer.Option(help="a Ray cluster (HEAD_IP:6379) instead of a local Ray")
@@ -84,8 +83,8 @@ def sweep_command(
     run in <out>/sweep.csv and .parquet, the main figures against the share in sweep.png."""
     from behaviors.sweep import Grid, check_grid, resolve_net, resolve_policy, resolve_sumocfg, run_sweep
 
-    workers = workers if workers is not None else os.cpu_count() or 1
-    check_number("--workers", workers, low=1)
+    if workers is not None:
+        check_number("--workers", workers, low=1)
     check_number("--overtaker-fraction", overtaker_fraction, high=1)
     grid = Grid(
         sumocfgs=tuple(resolve_sumocfg(str(path)) for path in sumocfg or ()),
