@@ -35,6 +35,7 @@ from behaviors.sweep import (
     failed_row,
     fcd_figures,
     finished,
+    flow_figures,
     gather,
     row_path,
     run_point,
@@ -132,6 +133,23 @@ def test_the_grid_is_every_combination_once_in_a_fixed_order(scenario):
     ]
 
 
+def test_flow_figures_per_group_from_a_small_fcd():
+    """Two SUMO cars and an agent over 4 steps of 1 s: car a leaves after 2 records, b stops once."""
+    rows = [  # time, id, type, speed
+        (0, "a", "car", 10), (1, "a", "car", 10),
+        (0, "b", "car", 5), (1, "b", "car", 0), (2, "b", "car", 0), (3, "b", "car", 4),
+        (1, "k", "behave_keeper@k", 20), (2, "k", "behave_keeper", 20), (3, "k", "behave_keeper", 20),
+    ]  # fmt: skip
+    figures = flow_figures(pd.DataFrame(rows, columns=["time", "id", "type", "speed"]))
+    assert figures["sumo_vehicles"] == 2 and figures["agents_vehicles"] == 1 and figures["all_vehicles"] == 3
+    assert figures["sumo_left"] == 1 and figures["sumo_travel_time_mean_s"] == 2.0  # a: 0 to 1, plus a step
+    assert figures["sumo_throughput_per_h"] == 1 / 4 * 3600  # one car left in 4 s
+    assert figures["sumo_stops_per_vehicle"] == 0.5 and figures["agents_stops_per_vehicle"] == 0
+    assert figures["sumo_mean_speed"] == 29 / 6 and figures["agents_mean_speed"] == 20
+    assert figures["all_vehicle_km"] == (29 + 60) / 1000
+    assert figures["agents_share_of_vehicles"] == 1 / 3
+
+
 def test_a_sweep_of_3_shares_by_2_seeds_on_2_workers_ends_with_6_rows(swept):
     result, out = swept.result, swept.out
     table = result.table
@@ -227,7 +245,7 @@ def test_a_failed_run_is_a_row_with_its_error_and_the_others_go_on(scenario, tmp
     assert "1 of 2 runs failed" in result.stderr and "Traceback" not in result.stderr
     table = gather(out)
     assert list(table["status"]) == [FAILED, OK]  # sorted by scenario: bad.sumocfg first
-    assert "nowhere" in table["error"].iloc[0]
+    assert "nowhere" in table["error"].iloc[0] and f"{table['id'].iloc[0]}: failed: " in result.stderr
     assert len(list((out / "fcd").glob("*.parquet"))) == 1  # --keep-fcd keeps the finished run's FCD
 
 
