@@ -737,9 +737,11 @@ def use_bfloat16(precision: str, batch: int) -> bool:
     return precision == "bfloat16"
 
 
-POLICY_THREADS = 2
-"""Threads for the batched actor call. SUMO never steps during it (one process, one step at a
-time), so a second thread halves it where a second core exists (1,000 agents: 1.6 -> 0.8 ms)."""
+POLICY_THREADS = 1
+"""Threads for the batched actor call. A second thread saved ~0.2 ms at 1,000 agents on an idle
+2-core machine, but cost tens of milliseconds per call when any other process kept a core busy
+(a sweep's other runs, a training): 1,000 agents 0.67 ms with 1 thread, 67 ms with 2
+(benchmarks/bench_policy_threads.py, docs/benchmarks.md)."""
 
 
 def populate_policy(config: PopulateConfig) -> Policy:
