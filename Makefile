@@ -8,7 +8,7 @@ PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 WORKERS ?= 1
 
-.PHONY: setup run test typecheck lint bench learn-check pretrained paper realism own-nets dense clean
+.PHONY: setup run test typecheck lint bench soak learn-check pretrained paper realism own-nets dense clean
 
 setup: $(STAMP)
 
@@ -38,6 +38,9 @@ bench: $(STAMP)
 	$(BIN)/pip install $(PIP_FLAGS) -e '.[bench]'
 	$(BIN)/python benchmarks/bench_env.py
 	$(BIN)/python benchmarks/bench_populate.py
+
+soak: $(STAMP)
+	$(BIN)/python benchmarks/soak.py --jobs 2
 
 learn-check: $(STAMP)
 	$(BIN)/python benchmarks/learn_check.py --seed $(SEED) --workers $(WORKERS)
