@@ -5,7 +5,7 @@ Layout of a sweep folder (`--out`):
 * `runs/<point id>.json`: one finished run's row (its settings, its summary, its figures), written
   atomically when the run ends. A sweep started again skips every point whose row says `ok`, so a
   killed sweep resumes where it stopped; a failed run's row holds its error and is run again.
-* `fcd/<point id>.parquet` and `.agents.csv`: the run's FCD, only with `keep_fcd`.
+* `fcd/<point id>.csv` and `.agents.csv`: the run's FCD, only with `keep_fcd`.
 * `sweep.csv`, `sweep.parquet`, `sweep.png`: every row in `runs/`, gathered, and the main figures
   against the share with the spread over seeds.
 
@@ -41,6 +41,8 @@ if TYPE_CHECKING:
 
 RUNS_DIR = "runs"
 FCD_DIR = "fcd"
+FCD_SUFFIX = ".csv"
+"""Each run's FCD: SUMO writes csv as it goes (a parquet trace it keeps in memory until the end)."""
 TABLE = "sweep"
 OK, FAILED = "ok", "failed"
 WALL_COLUMNS = ("wall_s", "real_time_factor", "host")
@@ -183,7 +185,7 @@ def check_grid(grid: Grid) -> list[Point]:
 
     policies = {spec: load_policy(Path(spec)) for spec in _unique(grid.policies)}
     for point in points:  # every share and count: what the policy must drive, what the config holds
-        config = point.config(Path(tempfile.gettempdir()) / "check.parquet")
+        config = point.config(Path(tempfile.gettempdir()) / f"check{FCD_SUFFIX}")
         config.validate()
         check_fits(config, policies[point.policy])
     return points
@@ -230,7 +232,7 @@ def run_point(point: Point, *, keep_fcd: bool = False, workdir: Path | None = No
     """One populate run of `point` in a temporary folder and its row; any failure becomes a failed
     row. The row is the same wherever and beside whatever it runs."""
     with tempfile.TemporaryDirectory(prefix="behave-sweep-", dir=workdir) as folder:
-        fcd = Path(folder) / "fcd.parquet"
+        fcd = Path(folder) / f"fcd{FCD_SUFFIX}"
         start = time.perf_counter()
         try:
             from behaviors.populate import agents_csv_path, populate
@@ -483,7 +485,7 @@ def save_files(out: Path, result: RunResult) -> None:
         return
     folder = Path(out) / FCD_DIR
     ensure_writable_dir(folder)
-    for name, data in ((f"{result.row['id']}.parquet", result.fcd), (f"{result.row['id']}.agents.csv",
+    for name, data in ((f"{result.row['id']}{FCD_SUFFIX}", result.fcd), (f"{result.row['id']}.agents.csv",
                                                                       result.agents)):  # fmt: skip
         if data is not None:
             with atomic_path(folder / name) as tmp:

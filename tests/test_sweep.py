@@ -186,7 +186,7 @@ def test_a_killed_sweep_started_again_runs_only_the_missing_points(swept):
 def test_the_share_0_rows_are_a_plain_sumo_runs_figures(swept, scenario, tmp_path):
     table = swept.result.table
     for seed in SEEDS:
-        fcd = tmp_path / f"plain{seed}.parquet"
+        fcd = tmp_path / f"plain{seed}.csv"
         subprocess.run(
             [sumo_binary("sumo"), "-c", str(scenario), "--seed", str(seed), "--step-length", str(STEP),
              "--lateral-resolution", "0.8", "--no-step-log", "true", *COLLISION_OPTIONS,
@@ -209,7 +209,7 @@ def test_a_point_run_alone_gives_the_row_it_got_on_a_worker(swept, tmp_path):
     assert same(stored, {k: row[k] for k in stored})
     assert row.drop(list(stored)).isna().all()  # the table's other columns are other rows' (none here)
     # and `behave populate` of the same point writes the FCD those figures came from
-    fcd = tmp_path / "populate.parquet"
+    fcd = tmp_path / "populate.csv"
     subprocess.run(
         [sys.executable, "-m", "behaviors.cli", "populate", "--sumocfg", row["scenario_path"],
          "--share", "0.5", "--seed", "1", "--fcd", str(fcd)],
@@ -220,7 +220,7 @@ def test_a_point_run_alone_gives_the_row_it_got_on_a_worker(swept, tmp_path):
     assert same(figures, {k: row[k] for k in figures})
     save_files(tmp_path / "kept", alone)  # --keep-fcd: the run's FCD and agents table in fcd/
     kept = sorted(p.name for p in (tmp_path / "kept" / "fcd").iterdir())
-    assert kept == [f"{point.id}.agents.csv", f"{point.id}.parquet"]
+    assert kept == [f"{point.id}.agents.csv", f"{point.id}.csv"]
 
 
 def test_a_failed_run_is_a_row_with_its_error_and_the_others_go_on(scenario, tmp_path):
@@ -246,7 +246,7 @@ def test_a_failed_run_is_a_row_with_its_error_and_the_others_go_on(scenario, tmp
     table = gather(out)
     assert list(table["status"]) == [FAILED, OK]  # sorted by scenario: bad.sumocfg first
     assert "nowhere" in table["error"].iloc[0] and f"{table['id'].iloc[0]}: failed: " in result.stderr
-    assert len(list((out / "fcd").glob("*.parquet"))) == 1  # --keep-fcd keeps the finished run's FCD
+    assert len(list((out / "fcd").glob("*.agents.csv"))) == 1  # --keep-fcd keeps the finished run's FCD
 
 
 @pytest.mark.parametrize(
