@@ -143,7 +143,7 @@ class TrafficWeights:
     comfort_longitudinal: float = 0.05  # per (acceleration / 3 m/s^2)^2
     crash: float = 20.0  # collision or off-track
     no_progress: float = 10.0
-    free_headway: float = 3.0  # s: a leader farther than this does not limit a keeper's speed
+    free_headway: float = 1.6  # s: a leader nearer than this sets a keeper's target speed
     free_slow_lane: float = 60.0  # m: the slow-side lane counts as free beyond max(this, 3 s at speed)
     passing_zone: float = 20.0  # m: a fast-side leader this close is being passed
 

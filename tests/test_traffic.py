@@ -20,7 +20,7 @@ from behaviors.actuation import (
     gap_acceptable,
 )
 from behaviors.control import Fleet
-from behaviors.drivers import make_driver
+from behaviors.drivers import TrafficDriver, make_driver
 from behaviors.env import make_env
 from behaviors.geometry import RoadGeometry, build_geometry, load_geometry
 from behaviors.handover import HANDOVER_DISTANCE
@@ -249,11 +249,25 @@ def test_neighbours_beyond_the_end_of_a_curved_lane_stay_in_their_lanes():
 NO_LEADERS = (np.full((1, 6), np.inf), np.full((1, 6), np.nan))
 
 
-def drive_lanes(steers, speed=30.0, lane_offset=0.0, lanes=3, lane=1, width=3.5, dt=0.2, leaders=NO_LEADERS):
+MECHANICS = LaneDriving(keep_right=False)
+"""The execution layer without the rules of the road: the policy's lane choice alone."""
+
+
+def drive_lanes(
+    steers,
+    speed=30.0,
+    lane_offset=0.0,
+    lanes=3,
+    lane=1,
+    width=3.5,
+    dt=0.2,
+    leaders=NO_LEADERS,
+    lateral=MECHANICS,
+):
     """Run the traffic driver's actuation alone for one agent on a straight road with `lanes` lanes,
     keeping the books SUMO would (a car whose centre crosses a line is in the next lane, its offset
     jumps by a lane width); returns per step the lane, the offset in it, lateral speed and accel."""
-    car, lateral = CarModel(), LaneDriving()
+    car = CarModel()
     state = dict(speed=np.array([speed]), lat=np.array([0.0]), acc=np.array([0.0]), changing=np.array([0]))
     offset, rows = np.array([lane_offset]), []
     for steer in steers:
@@ -296,7 +310,7 @@ def test_steer_zero_centres_the_car_and_a_change_once_begun_goes_on():
 
 
 def test_a_change_waits_for_a_gap_a_driver_would_take():
-    lateral = LaneDriving()
+    lateral = MECHANICS
     speed, desired = np.full(4, 30.0), np.full(4, 30.0)
     gap, other = np.full((4, 6), np.inf), np.full((4, 6), np.nan)
     gap[1, 2:4] = 0.0  # a car alongside in the fast lane
@@ -321,13 +335,68 @@ def test_no_lane_change_towards_a_side_without_a_lane():
 def test_lateral_motion_is_limited_at_low_speed_and_at_the_border():
     slow = drive_lanes([1.0] * 5, speed=2.0)
     assert np.abs(slow[:, 2]).max() <= LaneDriving().max_slip * 2.0 + 1e-9
-    car, lateral = CarModel(), LaneDriving()
+    car, lateral = CarModel(), MECHANICS
     edge = actuate_lanes(
         np.array([[0.0, 0.5, 0.0]]), np.array([30.0]), np.array([30.0]), *NO_LEADERS, np.array([1.2]),
         np.array([0.0]), np.array([0]), np.array([-0.5]), np.array([3.5]), np.array([0]), np.array([2]),
         np.array([4.3]), np.array([5.25]), np.array([33.3]), 0.2, car, lateral,
     )  # fmt: skip
     assert edge.actuation.off_track[0]
+
+
+def leaders_of(**cars):
+    """NO_LEADERS with cars in NEIGHBOUR_SLOTS columns: name=(column, gap m, speed m/s)."""
+    gap, other = np.full((1, 6), np.inf), np.full((1, 6), np.nan)
+    for column, g, v in cars.values():
+        gap[0, column], other[0, column] = g, v
+    return gap, other
+
+
+def test_rules_of_the_road_keep_right_where_the_slow_lane_is_free():
+    ruled = LaneDriving()
+    back = drive_lanes([0.0] * 60, lateral=ruled)  # middle lane, nobody anywhere, no wish
+    assert back[-1, 0] == 0 and abs(back[-1, 1]) < 0.05  # moved over to the rightmost lane
+    queue = leaders_of(slow_lead=(4, 30.0, 20.0))  # a slower car 30 m ahead in the slow lane
+    stays = drive_lanes([0.0] * 60, lateral=ruled, leaders=queue)
+    assert set(stays[:, 0]) == {1}
+    closing = leaders_of(slow_follow=(5, 15.0, 36.0))  # someone coming up fast behind in the slow lane
+    assert set(drive_lanes([0.0] * 5, lateral=ruled, leaders=closing)[:, 4]) == {0}
+
+
+def test_rules_of_the_road_the_fast_lane_is_for_passing():
+    ruled = LaneDriving()
+    free = drive_lanes([1.0] * 10, lateral=ruled)  # a wish for the fast lane with nobody to pass
+    assert set(free[:, 4]) <= {0, -1}  # no move to the fast side (it keeps right instead)
+    held = leaders_of(lead=(0, 40.0, 22.0))  # held up: a leader 40 m ahead, 8 m/s slower than wanted
+    passing = drive_lanes([1.0] * 3, lateral=ruled, leaders=held)
+    assert passing[-1, 4] == 1  # the change to pass begins
+    assert drive_lanes([1.0] * 3, leaders=held)[-1, 4] == 1  # without the rules too
+
+
+def test_rules_of_the_road_no_passing_on_the_slow_side_at_speed():
+    ruled, car = LaneDriving(), CarModel()
+    fast_lane_leader = leaders_of(fast_lead=(2, 10.0, 25.0))  # 10 m ahead in the fast lane, 5 m/s slower
+    gap, other = fast_lane_leader
+    args = (np.array([30.0]), np.array([30.0]), gap, other, np.zeros(1), np.zeros(1), np.array([0]),
+            np.zeros(1), np.array([3.5]), np.array([1]), np.array([1]), np.zeros(1), np.array([5.25]),
+            np.array([33.3]), 0.2, car)  # fmt: skip
+    ruled_speed = actuate_lanes(np.array([[0.0, 0.5, 0.0]]), *args, ruled).actuation.speed[0]
+    free_speed = actuate_lanes(np.array([[0.0, 0.5, 0.0]]), *args, MECHANICS).actuation.speed[0]
+    assert ruled_speed < 30.0 - 0.2 and free_speed >= 30.0 - 1e-9  # it brakes not to pass on the right
+    other[0, 2] = 12.0  # the fast lane crawls (below 60 km/h): passing on the right is allowed
+    crawl = actuate_lanes(np.array([[0.0, 0.5, 0.0]]), *args, ruled).actuation.speed[0]
+    assert crawl >= 30.0 - 1e-9
+
+
+def test_a_change_is_given_up_for_a_car_that_comes_alongside():
+    ruled = LaneDriving()
+    held = leaders_of(lead=(0, 40.0, 22.0))
+    start = drive_lanes([1.0] * 3, lateral=ruled, leaders=held)
+    assert start[-1, 4] == 1
+    gap, other = held
+    gap[0, 3] = 0.0  # a car has come up alongside in the fast lane
+    given_up = drive_lanes([1.0] * 3, lateral=ruled, leaders=(gap, other))
+    assert set(given_up[:, 4]) == {0}
 
 
 def test_car_following_settles_at_a_human_headway_and_stops_behind_a_standing_car():
@@ -374,7 +443,7 @@ def test_free_road_at_the_desired_speed_is_the_best_step():
 
 def test_following_a_slower_car_costs_an_overtaker_but_not_a_keeper():
     gap = np.full((2, 6), np.inf)
-    gap[:, 0] = 40.0  # 2 s behind a car at 20 m/s
+    gap[:, 0] = 28.0  # 1.4 s behind a car at 20 m/s
     other = np.full((2, 6), np.nan)
     other[:, 0] = 20.0
     terms = traffic_rewards(
@@ -383,6 +452,9 @@ def test_following_a_slower_car_costs_an_overtaker_but_not_a_keeper():
     assert terms["speed"][0] == pytest.approx(1.0)  # keeper: the lane allows 20 m/s
     assert terms["speed"][1] == pytest.approx(1 - 10 / 30)  # overtaker: wants 30
     assert terms["headway"] == pytest.approx([0.0, 0.0]) and terms["closing"] == pytest.approx([0.0, 0.0])
+    gap[:, 0] = 60.0  # 3 s behind it: a keeper is asked to close up to a human headway
+    far = traffic_rewards(traffic_step(speed=np.full(2, 20.0), gap=gap, other_speed=other), TrafficWeights())
+    assert far.as_dict()["speed"][0] < 1.0
 
 
 def test_short_headway_closing_in_lane_changes_and_passing_on_the_slow_side_cost():
@@ -527,10 +599,12 @@ def exit_net(tmp: Path) -> Path:
 
 @contextlib.contextmanager
 def keeper_on(
-    net: Path, edges: list[str], *, lane: int, pos: float, speed: float
+    net: Path, edges: list[str], *, lane: int, pos: float, speed: float, rules: bool = True
 ) -> Iterator[tuple[SumoSim, Fleet]]:
-    """SUMO on `net` with one keeper, "agent", on the route `edges`, driven by a traffic-driver Fleet."""
-    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), make_driver("traffic"))
+    """SUMO on `net` with one keeper, "agent", on the route `edges`, driven by a traffic-driver Fleet
+    (`rules`: with the rules of the road, or the policy's lane choice alone)."""
+    driver = make_driver("traffic") if rules else TrafficDriver(MECHANICS)
+    fleet = Fleet(load_geometry(net), CarModel(), 0.2, PhaseTimer(), driver)
     options = SimOptions(net=net, additional=(get_scenario("tiny").vtypes,), step_length=0.2)
     with SumoSim(options) as sim:
         sim.add_route("route", edges)
@@ -665,7 +739,7 @@ def test_an_agent_in_the_fast_lane_is_handed_over_on_a_long_edge_well_before_its
     SUMO's driver stopped it dead in the fast lane to wait for a gap, a queue forming behind it."""
     built = build_osm_like("carriageway2", tmp_path)
     route = ["m0", "m1", built.exit_edge]
-    with keeper_on(built.net, route, lane=1, pos=100.0, speed=30.0) as (sim, fleet):
+    with keeper_on(built.net, route, lane=1, pos=100.0, speed=30.0, rules=False) as (sim, fleet):
         first_handed_on, lowest_speed, lanes = None, 99.0, []
         while "agent" in sim.vehicle_ids() and len(lanes) < 600:
             readings = sim.read_agents(["agent"])
@@ -682,6 +756,17 @@ def test_an_agent_in_the_fast_lane_is_handed_over_on_a_long_edge_well_before_its
         ramp_ahead = edges["m0"].length + edges["m1"].length - first_handed_on[1]
         assert ramp_ahead > 2 * HANDOVER_DISTANCE  # SUMO has the reach once per lane to cross
         assert any(lane.startswith(built.exit_edge) for lane in lanes)
+        assert lowest_speed > 15.0
+    with keeper_on(built.net, route, lane=1, pos=100.0, speed=30.0) as (sim, fleet):  # keeping right
+        lanes, lowest_speed = [], 99.0
+        while "agent" in sim.vehicle_ids() and len(lanes) < 600:
+            lanes.append(sim.read_agents(["agent"]).lane_id[0])
+            fleet.sense(sim, sim.read_vehicles(), True)
+            fleet.act(sim, np.array([[0.0, 0.5, 0.0]], np.float32))
+            sim.step()
+            if "agent" in sim.vehicle_ids():
+                lowest_speed = min(lowest_speed, float(sim.read_speeds(["agent"])[0]))
+        assert "m0_0" in lanes and any(lane.startswith(built.exit_edge) for lane in lanes)
         assert lowest_speed > 15.0
 
 
