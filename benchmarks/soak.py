@@ -20,7 +20,7 @@ table of every case measured so far to docs/benchmarks.md, section "Long runs" (
 markers; notes below them stay).
 
 Usage: python benchmarks/soak.py [--cases light,dense,day] [--jobs 1] [--every 60] [--warmup 600]
-                                 [--seed 3] [--scale 1.0] [--no-doc]
+                                 [--seed 3] [--scale 1.0] [--load TEXT] [--no-doc | --doc-only]
 """
 
 from __future__ import annotations
@@ -31,7 +31,9 @@ import multiprocessing
 import platform
 import re
 import subprocess
+import sys
 import tempfile
+import textwrap
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -178,7 +180,7 @@ def cpu_name() -> str:
 
 
 def load_results(folder: Path) -> dict[str, dict]:
-    """Every case measured so far: {case: {"populate": result, "alone": result}}."""
+    """Every case measured so far: {case: {"populate": result, "alone": result, "command": argv}}."""
     out = {}
     for path in sorted(folder.glob("*.json")):
         out[path.stem] = json.loads(path.read_text())
@@ -186,9 +188,13 @@ def load_results(folder: Path) -> dict[str, dict]:
 
 
 ORDER = list(CASES)
-COLUMNS = ["case", "road", "agents", "SUMO cars", "FCD", "simulated h", "seed", "RSS at 10 min MB",
-           "RSS at end MB", "populate MB per sim h", "SUMO alone MB per sim h", "bar",
-           "wall s (populate / alone)", "measured", "beside it"]  # fmt: skip
+
+
+def columns(warmup: float) -> list[str]:
+    return ["case", "road", "agents", "SUMO cars", "FCD", "simulated h", "seed",
+            f"RSS at {warmup / 60:g} min MB", "RSS at end MB", "populate MB per sim h",
+            "SUMO alone MB per sim h", "bar", "wall s (populate / alone)", "measured",
+            "beside it"]  # fmt: skip
 
 
 def table_rows(results: dict[str, dict], warmup: float) -> list[list[str]]:
@@ -203,8 +209,8 @@ def table_rows(results: dict[str, dict], warmup: float) -> list[list[str]]:
         road = "bundled highway (3 km)" if c["road_km"] is None else f"straight {c['road_km']:g} km"
         rows.append([
             name, road, str(c["agents"]), str(c["background"]), c["fcd"], f"{c['hours']:g}", str(pop["seed"]),
-            f"{rss_at(pop['samples'], warmup):.1f}", f"{pop['samples'][-1][1]:.1f}", f"{grows:.1f}",
-            f"{alone_grows:.1f}", meets(name, grows, alone_grows),
+            f"{rss_at(pop['samples'], warmup):.1f}", f"{pop['samples'][-1][1]:.1f}", f"{grows + 0.0:.1f}",
+            f"{alone_grows + 0.0:.1f}", meets(name, grows, alone_grows),
             f"{pop['wall_s']:.0f} / {alone['wall_s']:.0f}", pop["date"], pop["load"],
         ])  # fmt: skip
     return rows
@@ -223,17 +229,21 @@ def markdown(header: list[str], rows: list[list[str]]) -> str:
 
 
 def render(results: dict[str, dict], warmup: float, meta: dict) -> str:
-    parts = [
+    commands = sorted({r.get("command", "python benchmarks/soak.py") for r in results.values()})
+    intro = (
         f"Machine: {meta['cpu']} (`lscpu`). Every case: `behave populate` "
         "(`behaviors.populate.populate`, `--keep-count`, FCD on, step 0.2 s) in a fresh process, and SUMO "
         "alone with the same vehicles (all `behave_background`) in another; RSS from /proc/self/status "
         f"every {meta['every']:g} simulated s; growth = least-squares slope after the first "
         f"{warmup / 60:g} simulated minutes. Bar (light, dense): <= {BAR_MB_PER_H:g} MB per simulated hour, "
-        "and no more than SUMO alone where SUMO alone grows.",
+        "and no more than SUMO alone where SUMO alone grows."
+    )
+    parts = [
+        textwrap.fill(intro, 100),
         "",
-        f"Command: `{meta['command']}`",
+        "Commands: " + ", ".join(f"`{c}`" for c in commands),
         "",
-        markdown(COLUMNS, table_rows(results, warmup)),
+        markdown(columns(warmup), table_rows(results, warmup)),
     ]
     if "day" in results:
         parts += [
@@ -271,6 +281,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--no-doc", action="store_true", help="do not write docs/benchmarks.md")
     parser.add_argument("--results", type=Path, default=RESULTS, help="folder of the per-case results")
     parser.add_argument(
+        "--doc-only", action="store_true", help="run nothing: the doc from the results so far"
+    )
+    parser.add_argument(
         "--load", default="idle machine", help="what else runs on the machine (noted beside the wall times)"
     )
     args = parser.parse_args(argv)
@@ -288,12 +301,14 @@ def main(argv: list[str] | None = None) -> None:
     console = Console(width=max(Console().width, 160))
     cases = [CASES[name] for name in args.case_list]
     cases = [replace(c, hours=c.hours * args.scale) for c in cases]
-    runs = [Run(c, alone, args.seed, args.every, args.load) for c in cases for alone in (False, True)]
+    kinds = () if args.doc_only else (False, True)
+    runs = [Run(c, alone, args.seed, args.every, args.load) for c in cases for alone in kinds]
     # the longest first, so that with --jobs 2 the short ones fill in beside it
     runs.sort(key=lambda r: -(r.case.hours * (r.case.agents + r.case.background) * (1 if r.alone else 5)))
     context = multiprocessing.get_context("spawn")
     args.results.mkdir(parents=True, exist_ok=True)
     done: dict[str, dict] = {}
+    command = "python benchmarks/soak.py " + " ".join(argv if argv is not None else sys.argv[1:])
     start = time.perf_counter()
     with context.Pool(args.jobs, maxtasksperchild=1) as pool:
         for result in pool.imap_unordered(measure, runs):
@@ -301,28 +316,18 @@ def main(argv: list[str] | None = None) -> None:
             kind = "alone" if result["alone"] else "populate"
             console.print(f"[dim]{name} {kind}: {result['wall_s']:.0f} s wall, "
                           f"{time.perf_counter() - start:.0f} s since start[/dim]")  # fmt: skip
-            done.setdefault(name, {})[kind] = result
-            if len(done[name]) == 2:
+            done.setdefault(name, {"command": command})[kind] = result
+            if len(done[name]) == 3:
                 atomic_write_text(args.results / f"{name}.json", json.dumps(done[name]))
     results = load_results(args.results)
-    print_table(console, "memory over simulated time", COLUMNS, table_rows(results, args.warmup))
+    print_table(console, "memory over simulated time", columns(args.warmup), table_rows(results, args.warmup))
     if "day" in results:
         print_table(console, "the simulated day", ["simulated h", "populate MB", "SUMO alone MB"],
                     trace_rows(results["day"], 3600.0))  # fmt: skip
     if not args.no_doc:
-        meta = {
-            "cpu": cpu_name(),
-            "every": args.every,
-            "command": "python benchmarks/soak.py " + " ".join(argv if argv is not None else _argv()),
-        }
+        meta = {"cpu": cpu_name(), "every": args.every}
         write_doc(render(results, args.warmup, meta))
         console.print(f"wrote {DOC.relative_to(ROOT)}")
-
-
-def _argv() -> list[str]:
-    import sys
-
-    return sys.argv[1:]
 
 
 if __name__ == "__main__":
