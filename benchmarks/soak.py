@@ -31,7 +31,6 @@ import multiprocessing
 import platform
 import re
 import subprocess
-import sys
 import tempfile
 import textwrap
 import time
@@ -308,7 +307,11 @@ def main(argv: list[str] | None = None) -> None:
     context = multiprocessing.get_context("spawn")
     args.results.mkdir(parents=True, exist_ok=True)
     done: dict[str, dict] = {}
-    command = "python benchmarks/soak.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = f"python benchmarks/soak.py --cases {','.join(args.case_list)}" + "".join(
+        f" --{name} {getattr(args, name):g}"
+        for name, default in (("scale", 1.0), ("seed", 3), ("every", 60.0), ("warmup", 600.0))
+        if getattr(args, name) != default
+    )
     start = time.perf_counter()
     with context.Pool(args.jobs, maxtasksperchild=1) as pool:
         for result in pool.imap_unordered(measure, runs):
