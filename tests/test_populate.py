@@ -257,14 +257,17 @@ def test_auto_precision_uses_bfloat16_only_for_big_fleets():
     assert use_bfloat16("bfloat16", 1)
 
 
-def test_the_shield_removes_most_crashes_on_a_crowded_highway(tmp_path, multi_policy):
-    base = {"policy": multi_policy, "overtakers": 60, "keepers": 60, "background": 60, "duration": 40.0,
+def test_the_shield_removes_most_crashes_on_a_crowded_highway(tmp_path):
+    """The paper's multi policy keeps full throttle behind slower cars and drifts sideways: without
+    the shield it crashes on a crowded road (the traffic driver's rules leave the shield little to do)."""
+    policy = DEFAULT_POLICY.parent / "multi.pt"
+    base = {"policy": policy, "overtakers": 60, "keepers": 60, "background": 60, "duration": 40.0,
             "keep_count": True, "seed": 3}  # fmt: skip
     bare = populate(PopulateConfig(**base, fcd=tmp_path / "bare.xml", shield=False))
     shielded = populate(PopulateConfig(**base, fcd=tmp_path / "shielded.xml"))
     assert bare.side_cuts == bare.speed_cuts == 0
     assert shielded.side_cuts > 0 and shielded.speed_cuts > 0
-    assert shielded.collisions <= bare.collisions / 4
+    assert bare.collisions >= 4 and shielded.collisions <= bare.collisions / 4
 
 
 def steering_policy(tmp: Path, steer: float) -> Path:
