@@ -81,45 +81,59 @@ class Lanes:
 
 
 def read_lanes(net: Path) -> Lanes:
-    """Lane layout of a SUMO net (.net.xml or .net.xml.gz), internal lanes included.
+    """Lane layout of a SUMO net (.net.xml or .net.xml.gz), internal lanes included (through
+    sumo_scenarios.net, the one net reader).
 
     Ranks count only lanes that allow passenger cars (a sidewalk or bus lane is not lane 0).
     """
-    import xml.sax
+    import gzip
+    import zlib
 
-    import sumolib
+    from sumo_scenarios.net import DEFAULT_LANE_WIDTH, net_elements
 
     net = Path(net)
     if not net.is_file():
         raise BehaveError(f"net file not found: {net}")
+    centre: dict[str, float] = {}
+    width: dict[str, float] = {}
+    rank: dict[str, int] = {}
+    lefthand, root = False, False
     try:
-        road = sumolib.net.readNet(str(net), withInternal=True)
-        lefthand = _is_lefthand(net)
-    except (xml.sax.SAXException, ET.ParseError, ValueError, KeyError, OSError, EOFError) as err:
+        for elem in net_elements(net):
+            if elem.tag == "net":
+                root, lefthand = True, elem.get("lefthand") == "true"
+            elif elem.tag == "edge" and root and elem.get("function", "") in EDGE_FUNCTIONS:
+                _add_edge(elem, centre, width, rank, DEFAULT_LANE_WIDTH)
+    except (ET.ParseError, ValueError, KeyError, OSError, EOFError, gzip.BadGzipFile, zlib.error) as err:
         raise BehaveError(f"{net} is not a SUMO net ({err})") from None
-    centre, width, rank = {}, {}, {}
-    for edge in road.getEdges():
-        border, cars = 0.0, 0
-        for lane in sorted(edge.getLanes(), key=lambda lane: lane.getIndex()):
-            lane_id = lane.getID()
-            width[lane_id] = lane.getWidth()
-            centre[lane_id] = border + lane.getWidth() / 2
-            rank[lane_id] = cars
-            border += lane.getWidth()
-            cars += bool(lane.allows("passenger"))
+    if not root:
+        raise BehaveError(f"{net} is not a SUMO net (its root element is not <net>)")
     if not centre:
         raise BehaveError(f"{net} is not a SUMO net (no lanes)")
     return Lanes(centre, width, rank, lefthand, from_net=True)
 
 
-def _is_lefthand(net: Path) -> bool:
-    import sumolib
+EDGE_FUNCTIONS = ("", "internal", "crossing", "walkingarea")
+"""The edges whose lanes count: normal ones (no function) and a junction's (not macro connectors)."""
 
-    with sumolib.openz(str(net), mode="rb") as f:
-        _, root = next(ET.iterparse(f, events=("start",)))
-    if root.tag != "net":
-        raise ValueError(f"root element <{root.tag}>, expected <net>")
-    return root.get("lefthand") == "true"
+
+def _add_edge(
+    elem: ET.Element, centre: dict[str, float], width: dict[str, float], rank: dict[str, int], default: float
+) -> None:
+    """One edge's lanes from its outer border: centre, width, and rank among the car lanes."""
+    from sumo_scenarios.net import allows_car
+
+    lanes = list(elem.iter("lane"))
+    order = sorted(range(len(lanes)), key=lambda k: int(lanes[k].get("index", k)))
+    border, cars = 0.0, 0
+    for k in order:
+        lane = lanes[k]
+        lane_id, lane_width = lane.get("id", ""), float(lane.get("width", default))
+        width[lane_id] = lane_width
+        centre[lane_id] = border + lane_width / 2
+        rank[lane_id] = cars
+        border += lane_width
+        cars += allows_car(lane.get("allow"), lane.get("disallow"))
 
 
 def group_names(ids: pd.Series, types: pd.Series | None, group_by: str) -> pd.Series:

@@ -18,8 +18,8 @@ ALLOWED_CIRCLES = [{"behaviors.env", "behaviors.traffic_env"}]
 """To be removed: TrafficEnv subclasses BehaveEnv only to borrow its helpers (issue 22)."""
 
 NET_READER = "sumo_scenarios.net"
-SUMOLIB_NET_READERS_ALLOWED = {"behaviors.realism"}
-"""To be removed once realism.read_lanes reads nets through sumo_scenarios.net."""
+SUMOLIB_NET_READERS_ALLOWED: set[str] = set()
+"""Modules allowed to read nets with sumolib: none (realism.read_lanes reads through sumo_scenarios.net)."""
 
 
 def modules() -> dict[str, Path]:
