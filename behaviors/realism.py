@@ -675,9 +675,11 @@ def rows(report: Report) -> list[list[str]]:
     ]
 
 
-def write_report(report: Report, out: Path, title: str, *, picture: bool = True) -> list[Path]:
-    """realism.csv (raw numbers), realism.md and (if `picture`: it takes ~2 s) realism.png in `out`,
-    each complete or absent."""
+def write_report(
+    report: Report, out: Path, title: str, *, picture: bool = True, extra: Sequence[str] = ()
+) -> list[Path]:
+    """realism.csv (raw numbers), realism.md (with the `extra` lines at its end) and (if `picture`:
+    it takes ~2 s) realism.png in `out`, each complete or absent."""
     out = Path(out)
     ensure_writable_dir(out)
     groups = list(report.table.columns)
@@ -691,6 +693,7 @@ def write_report(report: Report, out: Path, title: str, *, picture: bool = True)
     lines = [f"# Realism report: {title}", "", *(f"- {note}" for note in report.notes), ""]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(row) + " |" for row in rows(report)]
+    lines += ["", *extra] if extra else []
     paths = [out / "realism.csv", out / "realism.md"]
     atomic_write_text(paths[0], buffer.getvalue())
     atomic_write_text(paths[1], "\n".join(lines) + "\n")

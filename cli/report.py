@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -27,16 +27,21 @@ def report_command(
     group_by: Annotated[
         str, typer.Option(help=f"groups: {' or '.join(GROUP_BY)} (vType: keepers, overtakers, sumo)")
     ] = "type",
+    cell_m: Annotated[float, typer.Option(help="fundamental diagram: cell length along an edge, m")] = 500.0,
+    window_s: Annotated[float, typer.Option(help="fundamental diagram: cell duration, s")] = 60.0,
 ) -> None:
-    """Lane use, lane changes, lateral acceleration, headways, passes, speeds and losses per group."""
+    """Lane use, lane changes, lateral acceleration, headways, passes, speeds and losses per group,
+    and flow against density (flow.csv, flow.png)."""
     from behaviors.export import read_fcd
     from behaviors.realism import Lanes, agents_path, check_options, measure, read_agents, read_lanes, rows
     from behaviors.realism import write_report as write_realism
 
     check_options(skip_s, group_by)
+    check_cells(cell_m, window_s)
     lanes = read_lanes(net) if net is not None else Lanes()
     agents = read_agents(agents_path(fcd))
-    report = measure(read_fcd(fcd), lanes, agents=agents, skip_s=skip_s, group_by=group_by)
+    df = read_fcd(fcd)
+    report = measure(df, lanes, agents=agents, skip_s=skip_s, group_by=group_by)
     table = Table(title=f"behave report: {fcd.name}")
     for column in ("metric", *report.table.columns, "naturalistic"):
         table.add_column(column, justify="left" if column in ("metric", "naturalistic") else "right")
@@ -46,5 +51,45 @@ def report_command(
     console.print(table)
     for note in report.notes:
         console.print(f"- {note}")
-    for path in write_realism(report, out if out is not None else fcd.parent, title=fcd.name):
+    out = out if out is not None else fcd.parent
+    cells, lines = fundamental_diagram(df, net, group_by, cell_m, window_s)
+    typer.echo("\n".join(lines))
+    for path in write_realism(report, out, title=fcd.name, extra=lines):
         typer.echo(f"wrote {path}")
+    if cells is not None:
+        from behaviors.flow import write_flow
+
+        for path in write_flow(cells, out, title=fcd.name):
+            typer.echo(f"wrote {path}")
+
+
+def check_cells(cell_m: float, window_s: float) -> None:
+    from behaviors.errors import BehaveError
+
+    for name, value in (("--cell-m", cell_m), ("--window-s", window_s)):
+        if not 0 < value < float("inf"):
+            raise BehaveError(f"{name} must be a positive number, got {value}")
+
+
+def fundamental_diagram(
+    df: Any, net: Path | None, group_by: str, cell_m: float, window_s: float
+) -> tuple[Any, list[str]]:
+    """Edie's flow and density per cell and group (None if no cell), and the report's lines on it."""
+    from behaviors.flow import edie_cells, road_from_fcd, road_from_net, summary, summary_markdown
+    from behaviors.realism import group_names
+
+    road = road_from_net(net) if net is not None else road_from_fcd(df)
+    groups = group_names(df["id"], df.get("type"), group_by)
+    cells = edie_cells(df, road, groups, cell_m=cell_m, window_s=window_s)
+    head = ["## Flow against density (Edie's definitions)", ""]
+    if cells.empty:
+        return None, [*head, f"- no whole {window_s:g} s window on a cell of 50 m or more: no points"]
+    where = "the net's edges" if net is not None else "edges as long as the furthest position seen on them"
+    notes = [
+        f"- cells of {cell_m:g} m (all car lanes of an edge) x {window_s:g} s on {where}, every record "
+        "(insertion included), junctions left out; a group's flow and density are its share of the "
+        "cell; points in flow.csv and flow.png",
+        "- max flow: the highest mean flow over cells in a 5 veh/lane-km density bin (3 cells or more)",
+        "",
+    ]
+    return cells, [*head, *notes, *summary_markdown(summary(cells))]

@@ -3,11 +3,16 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
+from test_realism import populated, report
 
+from behaviors.export import read_fcd
 from behaviors.flow import ALL, RoadEdges, edie_cells, region, road_from_fcd, summary
+from sumo_scenarios import get_scenario
 
 EDGE_M = 1000.0
 STEP = 0.5
@@ -83,3 +88,40 @@ def test_internal_lanes_and_partial_windows_are_left_out() -> None:
     )
     assert len(cells) == 1
     assert cells.loc[0, "density"] == pytest.approx(5.0)
+
+
+def test_report_draws_the_fundamental_diagram_of_a_real_populate_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fcd = populated(tmp_path)
+    out = tmp_path / "report"
+    net = get_scenario("highway").net
+    args = [str(fcd), "--net", str(net), "--out", str(out), "--window-s", "20", "--cell-m", "300"]
+    code, stdout, stderr = report(args, monkeypatch, capsys)
+    assert code == 0, stderr
+    assert "Flow against density" in stdout
+    cells = pd.read_csv(out / "flow.csv")
+    assert set(cells["group"]) == {"keepers", "overtakers", "sumo", ALL}
+    assert set(cells["lanes"]) == {3} and set(cells["cell_m"]) == {300.0}
+    assert len(cells) == 4 * 10 * 2  # 4 groups x 10 edges of 300 m x 2 windows of 20 s
+    # the groups add up to `all` in every cell
+    parts = cells[cells["group"] != ALL].groupby(["edge", "t_start_s"])[["density", "flow"]].sum()
+    every = cells[cells["group"] == ALL].set_index(["edge", "t_start_s"])[["density", "flow"]]
+    assert np.allclose(parts.loc[every.index].to_numpy(), every.to_numpy())
+    # Edie's density over the whole road = the mean number of cars on its normal lanes / 9 lane-km
+    df = read_fcd(fcd)
+    on_road = df[~df["lane"].astype(str).str.startswith(":") & (df["time"] < 40.0)]
+    expected = on_road.groupby("time").size().reindex(np.unique(df["time"]), fill_value=0).mean() / 9.0
+    assert region(cells).loc[ALL, "density"] == pytest.approx(expected, rel=0.02)
+    assert 10 < region(cells).loc[ALL, "speed"] < 40  # m/s, on a 120 km/h road
+    assert (out / "flow.png").read_bytes()[:4] == b"\x89PNG"
+    text = (out / "realism.md").read_text()
+    assert "## Flow against density" in text and "| all |" in text
+
+
+def test_report_refuses_bad_cells(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "fcd.xml").write_text("<fcd-export/>")
+    code, _, stderr = report([str(tmp_path / "fcd.xml"), "--cell-m", "0"], monkeypatch, capsys)
+    assert code == 2 and "--cell-m must be a positive number" in stderr

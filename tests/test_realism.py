@@ -212,13 +212,19 @@ def report(
     return stop.value.code, out.out, out.err
 
 
-def test_report_on_a_real_populate_run(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
-    fcd = tmp_path / "fcd.xml"
+def populated(folder: Path) -> Path:
+    """The FCD of a short populate run on the bundled highway (2 + 2 agents, 8 SUMO cars, 40 s)."""
+    fcd = folder / "fcd.xml"
     run = behave("populate", "--duration", "40", "--keepers", "2", "--overtakers", "2", "--background", "8",
                  "--keep-count", "--fcd", str(fcd))  # fmt: skip
     assert run.returncode == 0, run.stderr
+    return fcd
+
+
+def test_report_on_a_real_populate_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fcd = populated(tmp_path)
     net = get_scenario("highway").net
     out = tmp_path / "report"
     code, stdout, stderr = report([str(fcd), "--net", str(net), "--out", str(out)], monkeypatch, capsys)
