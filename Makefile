@@ -8,7 +8,7 @@ PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 WORKERS ?= 1
 
-.PHONY: setup run test typecheck lint bench soak learn-check pretrained paper realism own-nets dense clean
+.PHONY: setup run test typecheck lint bench soak learn-check pretrained paper realism own-nets dense flow clean
 
 setup: $(STAMP)
 
@@ -56,6 +56,9 @@ own-nets: $(STAMP)
 
 dense: $(STAMP)
 	$(BIN)/python benchmarks/dense_bars.py --seed $(SEED)
+
+flow: $(STAMP)
+	$(BIN)/python benchmarks/flow.py --seed $(SEED) --jobs 2
 
 paper: $(STAMP)
 	$(BIN)/python benchmarks/paper.py --seed $(SEED)
