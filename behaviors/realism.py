@@ -124,7 +124,7 @@ def _add_edge(
     from sumo_scenarios.net import allows_car
 
     lanes = list(elem.iter("lane"))
-    order = sorted(range(len(lanes)), key=lambda k: int(lanes[k].get("index", k)))
+    order = sorted(range(len(lanes)), key=lambda k: int(lanes[k].get("index") or k))
     border, cars = 0.0, 0
     for k in order:
         lane = lanes[k]
