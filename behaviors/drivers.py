@@ -58,7 +58,7 @@ class PaperDriver:
 
     name = "paper"
     among_traffic = False
-    """Trains in the paper's formations on the bundled roads (env.BehaveEnv), not among SUMO's traffic."""
+    """Trains in the paper's formations on the bundled roads (paper_env.PaperEnv), not among traffic."""
     reward_scale = 0.01
     """The paper's rewards are ~100 per step (km/h): the critic sees them scaled by this."""
     exploration: ClassVar[dict[str, tuple[float, float, float]]] = {}

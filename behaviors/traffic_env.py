@@ -14,9 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from behaviors.control import Fleet
-from behaviors.drivers import make_driver
-from behaviors.env import (
+from behaviors.env_core import (
     BACKGROUND_TYPE,
     KEEPER_TYPE,
     OVERTAKER_TYPE,
@@ -26,13 +24,11 @@ from behaviors.env import (
     BehaveEnv,
     EnvConfig,
     StepBatch,
-    action_space,
 )
 from behaviors.errors import BehaveError
 from behaviors.geometry import RoadGeometry, load_geometry
 from behaviors.rewards import NO_PROGRESS_SECONDS, TrafficStep, TrafficWeights, traffic_rewards
 from behaviors.sim import SimOptions, SumoSim
-from behaviors.timing import PhaseTimer
 from sumo_scenarios import Scenario, get_scenario, route_edges, training_roads
 
 DESIRED_SPEED = {0.0: (0.72, 0.90), 1.0: (0.92, 1.0)}
@@ -92,11 +88,10 @@ def queue_places(
 
 
 class TrafficEnv(BehaveEnv):
-    """Keepers and overtakers among SUMO's traffic (driver "traffic"); same interfaces as BehaveEnv."""
+    """Keepers and overtakers among SUMO's traffic (drivers that train among traffic)."""
 
-    def __init__(self, config: EnvConfig) -> None:
+    def __init__(self, config: EnvConfig, render_mode: str | None = None) -> None:
         config.validate()
-        self.config = config
         self.roads: list[Scenario] = (
             training_roads(ramps=config.scenario == TRAINING_ROADS_WITH_RAMPS)
             if config.scenario in ROAD_FAMILIES
@@ -104,30 +99,9 @@ class TrafficEnv(BehaveEnv):
         )
         self.queues = config.scenario == TRAINING_ROADS_WITH_QUEUES
         self._geometries: dict[str, RoadGeometry] = {}
-        self.scenario = self.roads[0]
-        self.geometry = self._geometry(self.scenario)
-        self.lap = route_edges(self.scenario)
-        self.slot_behaviour = config.behaviour_ids()
-        self.possible_agents = [f"agent_{i}" for i in range(config.n_agents)]
-        self._obs_space = make_driver(config.driver).observation_space(config.with_id)
-        self._act_space = action_space()
-        self.sim: SumoSim | None = None
-        self.timer = PhaseTimer()
+        super().__init__(config, self.roads[0], self._geometry(self.roads[0]), render_mode)
         self.weights = TrafficWeights()
-        self.fleet = Fleet(
-            self.geometry,
-            config.car,
-            config.step_length,
-            self.timer,
-            make_driver(config.driver),
-            config.shield,
-        )
-        self.agents: list[str] = []
-        self._live_slots = np.zeros(0, np.int64)
-        self._rng = np.random.default_rng(config.seed)
         self.progress = np.zeros(config.n_agents)
-        self.passive_ids: list[str] = []
-        self._passive_on_road: set[str] = set()  # SUMO's cars stay on the road after a contact
 
     def _geometry(self, road: Scenario) -> RoadGeometry:
         if road.name not in self._geometries:
@@ -220,9 +194,7 @@ class TrafficEnv(BehaveEnv):
         ids = [names[k] for k in slots]
         sim.take_control(ids)
         behaviour = self.slot_behaviour[slots]
-        self.fleet = Fleet(
-            self.geometry, cfg.car, cfg.step_length, self.timer, make_driver(cfg.driver), cfg.shield
-        )
+        self.fleet = self._new_fleet()
         self.fleet.add(ids, sim.read_speeds(ids), behaviour, desired_fractions(behaviour, rng))
         self.agents = ids
         self._live_slots = slots

@@ -31,7 +31,7 @@ import pandas as pd
 import torch
 from common import meets_lanekeeping_bar, numbered_checkpoints
 
-from behaviors.env import BehaveEnv, EnvConfig
+from behaviors.env import EnvConfig, create_env
 from behaviors.errors import BehaveError
 from behaviors.evaluate import (
     EvaluationPlan,
@@ -233,7 +233,7 @@ def fresh_rows(env: EnvConfig, policy_path: Path, episodes: int, seed: int) -> d
 def fits(config: EnvConfig) -> str | None:
     """None if the cars fit on the scenario, else behave's message."""
     try:
-        BehaveEnv(config).close()
+        create_env(config).close()
     except BehaveError as err:
         return str(err)
     return None

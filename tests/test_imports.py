@@ -14,8 +14,7 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = {"behaviors": "behaviors", "sumo_scenarios": "sumo_scenarios", "cli": "behaviors.cli"}
 """Source folder -> the package it installs as (cli/ installs as behaviors.cli)."""
 
-ALLOWED_CIRCLES = [{"behaviors.env", "behaviors.traffic_env"}]
-"""To be removed: TrafficEnv subclasses BehaveEnv only to borrow its helpers (issue 22)."""
+ALLOWED_CIRCLES: list[set[str]] = []
 
 NET_READER = "sumo_scenarios.net"
 SUMOLIB_NET_READERS_ALLOWED: set[str] = set()
