@@ -198,6 +198,7 @@ class LaneDriving:
     arrived: float = 0.35  # lane widths past the new lane's centre line: the change is over
     accel_span: float = 1.5  # m/s^2
     safe_decel: float = 3.0  # m/s^2: a change may ask no harder braking of the car or its new follower
+    change_time: float = 5.0  # s: a faster new follower must not come alongside within this
     following: CarFollowing = CarFollowing()
     keep_right: bool = True  # the traffic rules below; False: the policy's lane choice alone
     free_ahead: float = 60.0  # m: the slow-side lane is free for keeping right beyond max(this, 3 s at speed)
@@ -221,7 +222,9 @@ def gap_acceptable(
     """[N, 2] bool: whether the fast-side (column 0) and slow-side (column 1) lane have room to
     change into, as a driver checks it: nobody alongside, and neither the new leader nor the new
     follower would make the car or its follower brake harder than `safe_decel` (the safety
-    criterion of MOBIL, Kesting, Treiber and Helbing 2007). `gap`/`other_speed` [N, 6] in
+    criterion of MOBIL, Kesting, Treiber and Helbing 2007), nor would a faster new follower come
+    alongside within `change_time` (a follower that sees the car only once it is over the line,
+    as an agent does, may not brake in time). `gap`/`other_speed` [N, 6] in
     lanes.NEIGHBOUR_SLOTS order (gap 0: alongside, or no lane)."""
     law, out = lateral.following, np.zeros((len(speed), 2), bool)
     for side, (lead, follow) in enumerate(((2, 3), (4, 5))):
@@ -232,6 +235,8 @@ def gap_acceptable(
         )
         out[:, side] = (gap[:, lead] > 0) & (gap[:, follow] > 0) & (own >= -lateral.safe_decel)
         out[:, side] &= theirs >= -lateral.safe_decel
+        closing = np.maximum(np.nan_to_num(other_speed[:, follow]) - speed, 0.0)
+        out[:, side] &= gap[:, follow] > law.min_gap + closing * lateral.change_time
     return out
 
 
@@ -246,15 +251,16 @@ def lane_intent(
     lateral: LaneDriving,
     slow_side_free: np.ndarray | None = None,
     held_up: np.ndarray | None = None,
-    alongside: np.ndarray | None = None,
 ) -> np.ndarray:
     """[N] int: the lane each agent heads for, relative to its own (+1 the fast side, -1 the slow
     side, 0 its own), given `changing`, the same at the last step. A change begins only where
     that side's lane exists and its gap is `acceptable` ([N, 2]: fast, slow; `gap_acceptable`);
-    until then the wish waits. Where `slow_side_free` [N] bool, no wish means keeping right,
-    and where `held_up` [N] bool is false, a wish for the fast side is none (that lane is for
-    passing). A change under way goes on whatever the steer: a policy that could
-    call changes off learnt to start one and call it off at the next step, riding beside the line.
+    until then the wish waits. With the rules of the road (`slow_side_free` [N] bool given), no
+    wish means keeping right where that lane is free, a wish for the fast side counts only where
+    `held_up` [N] bool, and a change whose gap stops being acceptable before the car crosses the
+    line is given up (a car came up alongside, or one of the two cars crossing paths). Otherwise a
+    change under way goes on whatever the steer: a policy that could call changes off learnt to
+    start one and call it off at the next step, riding beside the line.
 
     A change is over once the car's centre is `arrived` lane widths on the far side of its new
     lane's centre line, which is where SUMO puts it right after it crossed the line (its offset
@@ -268,9 +274,10 @@ def lane_intent(
     crossed = changing * lane_offset < -lateral.arrived * lane_width
     vanished = np.where(changing > 0, lanes_fast == 0, np.where(changing < 0, lanes_slow == 0, False))
     going = np.where(crossed | vanished, 0, changing)
-    if alongside is not None:  # a car has come up beside the agent in the lane it moves into
-        side_of = np.where(changing > 0, 0, 1)
-        going = np.where((changing != 0) & alongside[np.arange(len(changing)), side_of], 0, going)
+    if slow_side_free is not None:
+        before_line = changing * lane_offset >= 0.0
+        lost = ~acceptable[np.arange(len(changing)), np.where(changing > 0, 0, 1)]
+        going = np.where((changing != 0) & before_line & lost, 0, going)
     room = np.where(wish > 0, (lanes_fast > 0) & acceptable[:, 0], (lanes_slow > 0) & acceptable[:, 1])
     return np.where((changing == 0) & (wish != 0) & room, wish, going)
 
@@ -411,9 +418,6 @@ def actuate_lanes(
         lateral,
         free,
         held,
-        np.stack([(gap[:, 2] == 0) & (lanes_fast > 0), (gap[:, 4] == 0) & (lanes_slow > 0)], axis=1)
-        if lateral.keep_right
-        else None,
     )
     rows = np.arange(len(steer))
     target_column = np.where(heading > 0, 2, np.where(heading < 0, 4, 0))  # the leader there
