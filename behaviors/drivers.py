@@ -25,7 +25,14 @@ from behaviors.handover import (
     decide,
     lane_leads_on,
 )
-from behaviors.lanes import SEARCH_RADIUS, TRAFFIC_OBS_SIZE, LaneAgents, Surroundings, observe_lanes
+from behaviors.lanes import (
+    SEARCH_RADIUS,
+    TRAFFIC_LAYOUT,
+    TRAFFIC_OBS_SIZE,
+    LaneAgents,
+    Surroundings,
+    observe_lanes,
+)
 from behaviors.lanes import surroundings as lane_surroundings
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT, AgentFrame, neighbours, observe
 from behaviors.sim import SumoSim
@@ -63,6 +70,13 @@ class PaperDriver:
     """The paper's rewards are ~100 per step (km/h): the critic sees them scaled by this."""
     exploration: ClassVar[dict[str, tuple[float, float, float]]] = {}
     """The learner's default Ornstein-Uhlenbeck noise."""
+    normalisation = "angle/pi, rays/200 m, speeds km/h/300, wheel spin/100, rpm/10000"
+    """How the observation's values are scaled, as checkpoints record it."""
+
+    def observation_layout(self, with_id: bool) -> str:
+        """The observation's parts in order, as checkpoints record them."""
+        names = "+".join(name for name, _ in OBSERVATION_LAYOUT)
+        return f"torcs65:{names}" + ("+behaviour_id" if with_id else "")
 
     def obs_size(self, with_id: bool) -> int:
         return OBS_SIZE_WITH_ID if with_id else OBS_SIZE
@@ -138,6 +152,11 @@ class TrafficDriver:
     }
     """Steer noise correlated over ~7 steps (theta 0.15, stationary std 0.38), so that exploring
     asks for a lane long enough to start a change."""
+    normalisation = (
+        "speeds/40 m/s, speed error/10 m/s, lateral speed/2 m/s, lane width/4 m, lanes/3, "
+        "lane ends/500 m, gaps/150 m, relative speeds/15 m/s"
+    )
+    """How the observation's values are scaled (lanes.observe_lanes), as checkpoints record it."""
 
     def __init__(self, lateral: LaneDriving | None = None) -> None:
         self.lateral = LaneDriving() if lateral is None else lateral
@@ -145,6 +164,10 @@ class TrafficDriver:
 
     def obs_size(self, with_id: bool) -> int:
         return TRAFFIC_OBS_SIZE
+
+    def observation_layout(self, with_id: bool) -> str:
+        """The observation's parts in order (the behaviour id always among them)."""
+        return "traffic:" + "+".join(name for name, _ in TRAFFIC_LAYOUT)
 
     def observation_space(self, with_id: bool) -> spaces.Box:
         """Every value of the traffic observation (lanes.TRAFFIC_LAYOUT) lies within [-1.5, 1.5]."""

@@ -33,22 +33,23 @@ import numpy as np
 import torch
 
 from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
-from behaviors.ddpg.learner import DDPGConfig, DDPGLearner, IndependentLearners, UpdateStats
+from behaviors.ddpg.learner import (
+    DDPGConfig,
+    DDPGLearner,
+    IndependentLearners,
+    Learner,
+    Transitions,
+    UpdateStats,
+)
 from behaviors.ddpg.replay_files import ReplayFiles
 from behaviors.distributed import RayWorkers, WorkerSetup, ray_workers
+from behaviors.drivers import make_driver
 from behaviors.env import BEHAVIOURS, EnvConfig, create_env
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path, atomic_write_bytes, atomic_write_text, ensure_writable_dir
-from behaviors.lanes import TRAFFIC_LAYOUT, TRAFFIC_OBS_SIZE
 from behaviors.metrics import EpisodeStats, summary
-from behaviors.sensors import OBSERVATION_LAYOUT
 
 ALGORITHMS = ("ps-ddpg", "ddpg", "multi-ddpg")
-REWARD_SCALES = {"paper": 0.01, "traffic": 0.1}
-"""Critic reward scale per driver: the paper's rewards are ~100 per step (km/h), the traffic ones ~1."""
-TRAFFIC_EXPLORATION = {"ou_theta": (0.15, 1.0, 1.0), "ou_sigma": (0.2, 0.1, 0.05)}
-"""The traffic driver's steer sets a lateral speed: a lane change needs steer held for about 3 s,
-so its steer noise is correlated over ~7 steps (theta 0.15, stationary std 0.38) instead of ~2."""
 STATE_VERSION = 2
 UPDATE_LOG_EVERY = 10
 """TensorBoard's per-update scalars are the means of blocks of this many updates: writing every
@@ -87,7 +88,7 @@ class TrainConfig:
     warmup: int = _LEARNER.warmup
     explore_decay_steps: int = _LEARNER.explore_decay_steps
     batched_updates: bool = _LEARNER.batched
-    reward_scale: float | None = None  # for the critic (logged raw); None: the driver's REWARD_SCALES
+    reward_scale: float | None = None  # for the critic (logged raw); None: the driver's reward_scale
     checkpoint_every: int = 10
     init: str | None = None  # checkpoint to start from (curriculum: overtaking from lane keeping)
     max_minutes: float | None = None  # wall-clock budget: stop after the episode that exceeds it
@@ -129,14 +130,14 @@ class TrainConfig:
 
     @property
     def critic_reward_scale(self) -> float:
-        return REWARD_SCALES[self.driver] if self.reward_scale is None else self.reward_scale
+        return make_driver(self.driver).reward_scale if self.reward_scale is None else self.reward_scale
 
     def ddpg_config(self) -> DDPGConfig:
         shared = {
             f.name: getattr(self, f.name) for f in dataclasses.fields(DDPGConfig) if hasattr(self, f.name)
         }
         shared["hidden"] = tuple(self.hidden)  # JSON round trips turn it into a list
-        exploration: dict[str, Any] = TRAFFIC_EXPLORATION if self.driver == "traffic" else {}
+        exploration: dict[str, Any] = make_driver(self.driver).exploration
         return dataclasses.replace(_LEARNER, **shared, **exploration, batched=self.batched_updates)
 
     def to_json(self) -> str:
@@ -178,9 +179,7 @@ class Trainer:
         self.obs_dim = self.env.config.obs_size
         n = self.env.config.n_agents
         if config.algo == "multi-ddpg":
-            self.learner: DDPGLearner | IndependentLearners = IndependentLearners(
-                n, self.obs_dim, config.ddpg_config(), config.seed
-            )
+            self.learner: Learner = IndependentLearners(n, self.obs_dim, config.ddpg_config(), config.seed)
         else:
             self.learner = DDPGLearner(self.obs_dim, config.ddpg_config(), config.seed)
         self.speed_limit = max(info.speed for info in self.env.geometry.edges.values() if info.normal)
@@ -203,15 +202,18 @@ class Trainer:
 
     # --- policy I/O -------------------------------------------------------------------
     def meta(self) -> dict[str, Any]:
+        """What a checkpoint records: its driver names the observation, the policy loader reads it."""
         c = self.config
+        driver, with_id = make_driver(c.driver), self.env.config.with_id
         behaviours = ["overtaking", "lanekeeping"] if c.behaviour == "multi" else [c.behaviour]
         return {
             "algorithm": c.algo,
+            "driver": driver.name,
             "behaviour": c.behaviour,
             "behaviours": behaviours,
             "obs_dim": self.obs_dim,
-            "observation_layout": observation_layout_name(self.obs_dim),
-            "normalisation": "angle/pi, rays/200 m, speeds km/h/300, wheel spin/100, rpm/10000",
+            "observation_layout": driver.observation_layout(with_id),
+            "normalisation": driver.normalisation,
             "hidden": list(c.hidden),
             "training_steps": self.transitions,
             "episodes": self.episode,
@@ -221,20 +223,10 @@ class Trainer:
 
     @property
     def transitions(self) -> int:
-        if isinstance(self.learner, IndependentLearners):
-            return sum(lr.transitions for lr in self.learner.learners)
         return self.learner.transitions
 
-    def _policy_states(self) -> tuple[dict, dict, dict | None]:
-        """Actor and critic to save; multi-ddpg saves its first learner's nets and all in extra."""
-        if isinstance(self.learner, IndependentLearners):
-            first = self.learner.learners[0]
-            extra = {"actors": [lr.actor.state_dict() for lr in self.learner.learners]}
-            return first.actor.state_dict(), first.critic.state_dict(), extra
-        return self.learner.actor.state_dict(), self.learner.critic.state_dict(), None
-
     def save_policy(self, name: str) -> Path:
-        actor, critic, extra = self._policy_states()
+        actor, critic, extra = self.learner.checkpoint_states()
         path = self.out / "checkpoints" / f"{name}.pt"
         save_checkpoint(path, actor_state=actor, critic_state=critic, extra_state=extra, meta=self.meta())
         return path
@@ -250,9 +242,8 @@ class Trainer:
             load_checkpoint(path, expect_obs_dim=self.obs_dim, expect_layout=self.config.behaviour)
         actor = widen_inputs(ckpt.actor_state, self.obs_dim, obs_first=True)
         critic = ckpt.critic_state and widen_inputs(ckpt.critic_state, self.obs_dim, obs_first=False)
-        learners = self.learner.learners if isinstance(self.learner, IndependentLearners) else [self.learner]
         try:
-            for lr in learners:
+            for lr in self.learner.learners:
                 lr.actor.load_state_dict(actor)
                 lr.actor_target.load_state_dict(actor)
                 if critic is not None:
@@ -333,38 +324,26 @@ class Trainer:
         """One episode; None if stopped by a signal (the partial episode is not logged)."""
         env, learner, c = self.env, self.learner, self.config
         start = time.perf_counter()
-        updates_before = self._updates()
+        updates_before = learner.updates
+        scale = c.critic_reward_scale
         obs = env.reset_arrays(episode_seed(c.seed, self.episode))
         log = EpisodeStats(env.config.n_agents, env.slot_behaviour.copy())
         while env.agents:
             if self.stop_requested:
                 return None
             slots = env.live_slots
-            if isinstance(learner, IndependentLearners):
-                actions = learner.act(obs, slots, explore=True)
-            else:
-                actions = learner.act(obs, explore=True)
+            actions = learner.act_for(obs, slots, explore=True)
             batch = env.step_arrays(actions)
-            reward = (batch.reward * c.critic_reward_scale).astype(np.float32)
-            terminated = batch.terminated.astype(np.float32)
-            if isinstance(learner, IndependentLearners):
-                learner.observe(obs, actions, reward, batch.next_obs, terminated, slots)
-                learner.update(self.update_log)
-            else:
-                learner.observe(obs, actions, reward, batch.next_obs, terminated)
-                learner.update(
-                    len(slots) if c.updates_per_step is None else c.updates_per_step, self.update_log
-                )
+            reward = (batch.reward * scale).astype(np.float32)
+            step = Transitions(
+                obs, actions, reward, batch.next_obs, batch.terminated.astype(np.float32), slots
+            )
+            learner.learn(step, c.updates_per_step, self.update_log)
             log.record(slots, batch)
             obs = env.live_obs
         return episode_row(
-            self.episode, log, time.perf_counter() - start, self._updates() - updates_before, self.speed_limit
+            self.episode, log, time.perf_counter() - start, learner.updates - updates_before, self.speed_limit
         )
-
-    def _updates(self) -> int:
-        if isinstance(self.learner, IndependentLearners):
-            return sum(lr.updates for lr in self.learner.learners)
-        return self.learner.updates
 
     def _after_episode(self, row: dict[str, Any]) -> None:
         """The state first (it holds the metrics rows too): a kill after it redoes no episode."""
@@ -373,7 +352,7 @@ class Trainer:
             self.best = row["reward_sum"]
         self.save_state()
         if self.tensorboard is not None:  # after the state: a resumed run never logs an episode twice
-            self.update_stats = log_update_blocks(self.tensorboard, self.update_stats, self._updates())
+            self.update_stats = log_update_blocks(self.tensorboard, self.update_stats, self.learner.updates)
             log_scalars(self.tensorboard, row)
         self.save_policy("last")
         if improved:
@@ -436,13 +415,6 @@ def widen_inputs(state: dict, obs_dim: int, obs_first: bool) -> dict:
     zeros = torch.zeros(weight.shape[0], missing, dtype=weight.dtype)
     split = weight.shape[1] if obs_first else weight.shape[1] - 3
     return {**state, key: torch.cat([weight[:, :split], zeros, weight[:, split:]], dim=1)}
-
-
-def observation_layout_name(obs_dim: int) -> str:
-    if obs_dim == TRAFFIC_OBS_SIZE:
-        return "traffic:" + "+".join(name for name, _ in TRAFFIC_LAYOUT)
-    names = "+".join(name for name, _ in OBSERVATION_LAYOUT)
-    return f"torcs65:{names}" + ("+behaviour_id" if obs_dim == 66 else "")
 
 
 def episode_seed(seed: int, episode: int) -> int:

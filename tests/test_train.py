@@ -11,8 +11,9 @@ import pytest
 import torch
 
 from behaviors.ddpg.checkpoint import load_actor, load_checkpoint
+from behaviors.drivers import make_driver
 from behaviors.errors import BehaveError
-from behaviors.train import TrainConfig, prepare_run
+from behaviors.train import TrainConfig, Trainer, prepare_run
 
 TINY = {"scenario": "tiny", "agents": 2, "max_steps": 40, "warmup": 32, "batch_size": 16,
         "hidden": (32, 32), "checkpoint_every": 2, "buffer_size": 5000}  # fmt: skip
@@ -39,6 +40,22 @@ def test_a_short_run_writes_config_metrics_checkpoints_and_curve(tmp_path):
     assert (run / "curve.png").stat().st_size > 1000
     assert (run / "config.json").is_file() and (run / "state.pt").is_file()
     assert not [p for p in run.rglob(".*") if p.is_file()]  # no temp files left behind
+
+
+@pytest.mark.parametrize("driver", ["paper", "traffic"])
+def test_the_driver_gives_reward_scale_exploration_and_the_checkpoint_meta(tmp_path, driver):
+    """No driver's name is looked up in train.py: its settings and its checkpoint meta are the object's."""
+    model = make_driver(driver)
+    among_traffic = {"scenario": "roads", "behaviour": "multi", "overtakers": 1, "keepers": 1}
+    config = TrainConfig(**{**TINY, **(among_traffic if model.among_traffic else {}), "driver": driver})
+    trainer = Trainer(config, tmp_path)
+    meta = trainer.meta()
+    trainer.env.close()
+    assert meta["driver"] == driver and meta["normalisation"] == model.normalisation
+    assert meta["observation_layout"] == model.observation_layout(trainer.env.config.with_id)
+    assert config.critic_reward_scale == model.reward_scale
+    learner = config.ddpg_config()
+    assert all(getattr(learner, name) == value for name, value in model.exploration.items())
 
 
 def test_resume_continues_where_the_run_stopped_and_matches_an_uninterrupted_run(tmp_path):

@@ -47,6 +47,18 @@ class DDPGConfig:
     batched: bool = False
 
 
+@dataclass(frozen=True)
+class Transitions:
+    """One step's transitions of the live agents (row i = agent slot `agent_slots[i]`)."""
+
+    obs: np.ndarray
+    act: np.ndarray
+    rew: np.ndarray
+    next_obs: np.ndarray
+    terminated: np.ndarray  # no bootstrap (time-limit truncation is not termination)
+    agent_slots: np.ndarray
+
+
 def critic_targets(
     rew: torch.Tensor, terminated: torch.Tensor, next_q: torch.Tensor, gamma: float
 ) -> torch.Tensor:
@@ -102,6 +114,25 @@ class DDPGLearner:
     def buffers(self) -> list[ReplayBuffer]:
         """The replay buffers (one here), alike for both learner kinds."""
         return [self.buffer]
+
+    @property
+    def learners(self) -> list[DDPGLearner]:
+        """The networks' owners (this one), alike for both learner kinds."""
+        return [self]
+
+    def act_for(self, obs: np.ndarray, agent_slots: np.ndarray, explore: bool) -> np.ndarray:
+        """Actions for the rows of these agent slots: all share one actor."""
+        return self.act(obs, explore)
+
+    def learn(self, step: Transitions, updates_per_step: int | None, each: list[UpdateStats] | None) -> None:
+        """Store a step's transitions and update: one update per live agent (the paper's schedule)
+        unless `updates_per_step` says otherwise."""
+        self.observe(step.obs, step.act, step.rew, step.next_obs, step.terminated)
+        self.update(len(step.obs) if updates_per_step is None else updates_per_step, each)
+
+    def checkpoint_states(self) -> tuple[dict, dict, dict | None]:
+        """Actor, critic and extra state a policy checkpoint holds."""
+        return self.actor.state_dict(), self.critic.state_dict(), None
 
     def act(self, obs: np.ndarray, explore: bool) -> np.ndarray:
         """One batched forward pass for all N rows; exploration noise added, then clipped."""
@@ -242,6 +273,33 @@ class IndependentLearners:
     def buffers(self) -> list[ReplayBuffer]:
         return [lr.buffer for lr in self.learners]
 
+    @property
+    def transitions(self) -> int:
+        return sum(lr.transitions for lr in self.learners)
+
+    @property
+    def updates(self) -> int:
+        return sum(lr.updates for lr in self.learners)
+
+    def act_for(self, obs: np.ndarray, agent_slots: np.ndarray, explore: bool) -> np.ndarray:
+        """Actions for the rows of these agent slots, each from its slot's actor."""
+        return self.act(obs, agent_slots, explore)
+
+    def learn(self, step: Transitions, updates_per_step: int | None, each: list[UpdateStats] | None) -> None:
+        """Store a step's transitions with their slots' learners; one update per learner per step
+        (the baseline's budget: `updates_per_step` does not apply)."""
+        self.observe(step.obs, step.act, step.rew, step.next_obs, step.terminated, step.agent_slots)
+        self.update(each)
+
+    def checkpoint_states(self) -> tuple[dict, dict, dict | None]:
+        """The first learner's actor and critic, and every slot's actor as extra state."""
+        first = self.learners[0]
+        return (
+            first.actor.state_dict(),
+            first.critic.state_dict(),
+            {"actors": [lr.actor.state_dict() for lr in self.learners]},
+        )
+
     def state_dict(self, replay_rows: bool = True) -> dict[str, Any]:
         return {"learners": [lr.state_dict(replay_rows) for lr in self.learners]}
 
@@ -250,3 +308,8 @@ class IndependentLearners:
             raise ValueError(f"state has {len(state['learners'])} learners, not {len(self.learners)}")
         for learner, sub in zip(self.learners, state["learners"], strict=True):
             learner.load_state_dict(sub)
+
+
+Learner = DDPGLearner | IndependentLearners
+"""Either kind: the trainer uses only what both have (`learners`, `buffers`, `act_for`, `learn`,
+`checkpoint_states`, `transitions`, `updates`, `state_dict`, `load_state_dict`)."""
