@@ -9,7 +9,7 @@ step between two actor calls. The policy is populate's (`PopulateConfig`'s defau
 populate loads it, so `auto` precision applies), the observations random, `--agents` rows.
 
 Usage: python benchmarks/bench_policy_threads.py [--agents 1000] [--calls 200] [--rounds 3]
-                                                 [--work-ms 20] [--note TEXT]
+                                                 [--work-ms 20] [--precision auto] [--note TEXT]
 """
 
 from __future__ import annotations
@@ -55,8 +55,9 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--work-ms", type=float, default=20.0, help="own CPU work between two calls")
     parser.add_argument("--note", default="", help="what else ran on the machine (printed with the table)")
+    parser.add_argument("--precision", default="auto", choices=("auto", "float32", "bfloat16"))
     args = parser.parse_args()
-    policy = populate_policy(PopulateConfig())
+    policy = populate_policy(PopulateConfig(precision=args.precision))
     rng = np.random.default_rng(0)
     obs = rng.uniform(-1.0, 1.0, (args.agents, policy.obs_dim)).astype(np.float32)
     context = multiprocessing.get_context("spawn")
@@ -89,7 +90,8 @@ def main() -> None:
     console = Console()
     title = (
         f"batched actor call, {args.agents:,} agents, {args.work_ms:g} ms own work between calls, "
-        f"{args.rounds} x {args.calls} calls (populate.POLICY_THREADS = {POLICY_THREADS})"
+        f"{args.rounds} x {args.calls} calls, precision {args.precision} "
+        f"(populate.POLICY_THREADS = {POLICY_THREADS})"
     )
     header = ["busy process beside", "threads", "median ms", "p90 ms", "p99 ms", "mean ms"]
     print_table(console, title, header, rows)
