@@ -262,14 +262,15 @@ def error_line(exc: BaseException) -> str:
 
 
 def fcd_figures(fcd: Path, net: Path) -> dict[str, float]:
-    """The flow figures (`flow_figures`) and `behave report`'s realism figures of a populate FCD,
-    measured as `behave report FCD --net NET` measures them."""
+    """The flow figures (`flow_figures`) and `behave report`'s realism figures and fundamental-diagram
+    summary (`edie_figures`) of a populate FCD, measured as `behave report FCD --net NET` does."""
     from behaviors.export import read_fcd
     from behaviors.realism import Lanes, agents_path, read_agents, read_lanes
 
     df = read_fcd(fcd)
     lanes = read_lanes(net) if net.is_file() else Lanes()
-    return flow_figures(df) | realism_figures(df, lanes, read_agents(agents_path(fcd)))
+    figures = flow_figures(df) | realism_figures(df, lanes, read_agents(agents_path(fcd)))
+    return figures | edie_figures(df, net)
 
 
 def flow_figures(df: pd.DataFrame) -> dict[str, float]:
@@ -315,6 +316,25 @@ def flow_figures(df: pd.DataFrame) -> dict[str, float]:
         out["agents_vehicles"] / out["all_vehicles"] if len(per_car) else math.nan
     )
     return out
+
+
+def edie_figures(df: pd.DataFrame, net: Path) -> dict[str, float]:
+    """`behave report`'s fundamental-diagram summary (behaviors.flow: Edie's density, flow and speed
+    of the whole road, the highest flow of a density bin and its density, per group and `all`) as
+    columns `edie_<group>_<figure>`, with report's cells; nothing if the run holds no whole window."""
+    from behaviors.flow import CELL_M, WINDOW_S, edie_cells, road_from_fcd, road_from_net, summary
+    from behaviors.realism import group_names
+
+    road = road_from_net(net) if net.is_file() else road_from_fcd(df)
+    groups = group_names(df["id"], df.get("type"), "type")
+    cells = edie_cells(df, road, groups, cell_m=CELL_M, window_s=WINDOW_S)
+    if cells.empty:
+        return {}
+    return {
+        f"edie_{group}_{figure}": float(value)
+        for group, row in summary(cells).iterrows()
+        for figure, value in row.items()
+    }
 
 
 def realism_figures(df: pd.DataFrame, lanes: Any, agents: pd.DataFrame | None) -> dict[str, float]:

@@ -50,15 +50,18 @@ pytest.importorskip("ray", reason="ray is not installed (the distributed extra)"
 SHARES = (0.0, 0.25, 0.5)
 SEEDS = (0, 1)
 STEP = 0.2  # populate's step where the sumocfg sets none
-DEMAND = Demand(end=45.0, scale=1.0, sigma=0.5)
+DEMAND = Demand(end=62.0, scale=1.0, sigma=0.5)  # one whole 60 s window: `report`'s flow summary
 
 
-def same(a: dict, b: dict) -> bool:
-    """Rows equal value for value (nan equal to nan), wall-clock columns left out."""
+def differences(a: dict, b: dict) -> dict:
+    """Where two rows differ (nan equal to nan), wall-clock columns left out: {column: (a's, b's)}."""
     a, b = compared(a), compared(b)
-    if a.keys() != b.keys():
-        return False
-    return all(a[k] == b[k] or (pd.isna(a[k]) and pd.isna(b[k])) for k in a)
+    keys = sorted(a.keys() | b.keys())
+    return {
+        k: (a.get(k, "missing"), b.get(k, "missing"))
+        for k in keys
+        if k not in a or k not in b or not (a[k] == b[k] or (pd.isna(a[k]) and pd.isna(b[k])))
+    }
 
 
 @pytest.fixture(scope="module")
@@ -162,7 +165,9 @@ def test_a_sweep_of_3_shares_by_2_seeds_on_2_workers_ends_with_6_rows(swept):
     assert list(table.columns[-len(WALL_COLUMNS) :]) == list(WALL_COLUMNS)
     agents = table.set_index("share")["of_them_agents"]
     assert (agents[0.0] == 0).all() and (agents[0.5] > 0).all()
-    assert {"realism_sumo_thw_median", "realism_keepers_lane_changes_per_km", "sumo_mean_speed"} <= set(table)
+    columns = {"realism_sumo_thw_median", "realism_keepers_lane_changes_per_km", "sumo_mean_speed",
+               "edie_all_flow", "edie_sumo_density", "edie_keepers_max_flow"}  # fmt: skip
+    assert columns <= set(table)
     # no FCD unless asked: only rows and the table are left, no temp files
     assert sorted(p.name for p in out.iterdir()) == ["runs", "sweep.csv", "sweep.parquet", "sweep.png"]
     assert len(list((out / "runs").iterdir())) == 6
@@ -196,7 +201,7 @@ def test_the_share_0_rows_are_a_plain_sumo_runs_figures(swept, scenario, tmp_pat
         plain = fcd_figures(fcd, Path(str(scenario).replace(".sumocfg", ".net.xml")))
         row = table[(table["share"] == 0.0) & (table["seed"] == seed)].iloc[0].to_dict()
         assert plain["sumo_vehicles"] > 10 and row["agent_steps"] == 0 and row["collisions"] == 0
-        assert same({k: row[k] for k in plain}, plain)
+        assert not differences({k: row[k] for k in plain}, plain)
 
 
 def test_a_point_run_alone_gives_the_row_it_got_on_a_worker(swept, tmp_path):
@@ -206,7 +211,7 @@ def test_a_point_run_alone_gives_the_row_it_got_on_a_worker(swept, tmp_path):
     assert point.id == row["id"]
     alone = run_point(point, keep_fcd=True)
     stored = json.loads(json.dumps(alone.row))  # through JSON, as the sweep stores its rows
-    assert same(stored, {k: row[k] for k in stored})
+    assert not differences(stored, {k: row[k] for k in stored})
     assert row.drop(list(stored)).isna().all()  # the table's other columns are other rows' (none here)
     # and `behave populate` of the same point writes the FCD those figures came from
     fcd = tmp_path / "populate.csv"
@@ -217,7 +222,7 @@ def test_a_point_run_alone_gives_the_row_it_got_on_a_worker(swept, tmp_path):
     )  # fmt: skip
     assert fcd.read_bytes() == alone.fcd
     figures = fcd_figures(fcd, Path(row["scenario_path"].replace(".sumocfg", ".net.xml")))
-    assert same(figures, {k: row[k] for k in figures})
+    assert not differences(figures, {k: row[k] for k in figures})
     save_files(tmp_path / "kept", alone)  # --keep-fcd: the run's FCD and agents table in fcd/
     kept = sorted(p.name for p in (tmp_path / "kept" / "fcd").iterdir())
     assert kept == [f"{point.id}.agents.csv", f"{point.id}.csv"]
