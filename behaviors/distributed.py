@@ -29,7 +29,8 @@ import torch
 from behaviors.ddpg.learner import DDPGConfig, clip_actions
 from behaviors.ddpg.networks import Actor
 from behaviors.ddpg.noise import OUNoise
-from behaviors.env import EnvConfig, create_env
+from behaviors.env import EnvConfig, StepBatch, create_env
+from behaviors.episode import drive_episode
 from behaviors.errors import BehaveError
 from behaviors.metrics import EpisodeStats
 
@@ -86,18 +87,19 @@ class RolloutWorker:
         env, scale = self.env, self.reward_scale
         self.actor.load_state_dict(actor_state)
         self.noise.steps = explore_step
-        obs = env.reset_arrays(seed)
-        log = EpisodeStats(env.config.n_agents, env.slot_behaviour.copy())
         rows: list[tuple[np.ndarray, ...]] = []
-        while env.agents:
+
+        def choose(obs: np.ndarray, slots: np.ndarray) -> np.ndarray:
             with torch.inference_mode():
                 mean = self.actor(torch.as_tensor(obs, dtype=torch.float32)).numpy()
-            actions = clip_actions(mean + self.noise.sample(len(mean)))
-            batch = env.step_arrays(actions)
+            return clip_actions(mean + self.noise.sample(len(mean)))
+
+        def keep(obs: np.ndarray, actions: np.ndarray, batch: StepBatch) -> None:
             reward = (batch.reward * scale).astype(np.float32)
             rows.append((obs, actions, reward, batch.next_obs, batch.terminated.astype(np.float32)))
-            log.record(batch.slots, batch)
-            obs = env.live_obs
+
+        log = drive_episode(env, env.reset_arrays(seed), choose, keep)
+        assert log is not None  # nothing stops a worker's episode
         obs_, act, rew, next_obs, terminated = (np.concatenate(parts) for parts in zip(*rows, strict=True))
         return Rollout(obs_, act, rew, next_obs, terminated, len(rows), log, time.perf_counter() - start)
 

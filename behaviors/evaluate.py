@@ -28,10 +28,11 @@ from behaviors.env import (
     StepBatch,
     create_env,
 )
+from behaviors.episode import OnStep, drive_episode
 from behaviors.errors import BehaveError
 from behaviors.export import fcd_options, read_fcd
 from behaviors.files import atomic_write_bytes, atomic_write_text, ensure_writable_dir, temp_dir
-from behaviors.metrics import EpisodeStats, mean_rows, passed_fraction, summary
+from behaviors.metrics import mean_rows, passed_fraction, summary
 from behaviors.policy import Act, Policy, load_policy
 from behaviors.populate import STANDSTILL_SPEED
 from behaviors.realism import (
@@ -66,21 +67,25 @@ def evaluate(
                 env.sim_extra = tuple(fcd_options(fcd, geo=False))
             obs = env.reset_arrays(episode_seed(seed, 1_000_000 + episode))
             limit = max(info.speed for info in env.geometry.edges.values() if info.normal)  # this road's
-            stats = EpisodeStats(config.n_agents, env.slot_behaviour.copy())
             ends = None if fcd is None else AgentEnds(env)
-            while env.agents:
-                slots = env.live_slots
-                batch = env.step_arrays(policy(obs, slots).astype(np.float32))
-                stats.record(slots, batch)
-                if ends is not None:
-                    ends.record(batch)
-                obs = env.live_obs
+            stats = drive_episode(
+                env,
+                obs,
+                lambda obs, slots: policy(obs, slots).astype(np.float32),
+                recording(ends),
+            )
+            assert stats is not None  # nothing stops an evaluation's episode
             if fcd is not None and ends is not None:
                 atomic_write_text(agents_path(fcd), ends.table().to_csv(index=False))
             rows.append({"episode": episode, **summary(stats, limit, passed_fraction(env))})
     finally:
         env.close()
     return rows
+
+
+def recording(ends: AgentEnds | None) -> OnStep | None:
+    """The step hook that records the agents' ends, if this episode records them."""
+    return None if ends is None else lambda obs, actions, batch: ends.record(batch)
 
 
 def episode_fcd(record: Path, episode: int) -> Path:

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from behaviors.env import BehaveEnv, StepBatch
+from behaviors.env_core import BehaveEnv, StepBatch
 
 
 @dataclass

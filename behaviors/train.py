@@ -44,7 +44,8 @@ from behaviors.ddpg.learner import (
 from behaviors.ddpg.replay_files import ReplayFiles
 from behaviors.distributed import RayWorkers, WorkerSetup, ray_workers
 from behaviors.drivers import make_driver
-from behaviors.env import BEHAVIOURS, EnvConfig, create_env
+from behaviors.env import BEHAVIOURS, EnvConfig, StepBatch, create_env
+from behaviors.episode import drive_episode
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path, atomic_write_bytes, atomic_write_text, ensure_writable_dir
 from behaviors.metrics import EpisodeStats, summary
@@ -326,21 +327,23 @@ class Trainer:
         start = time.perf_counter()
         updates_before = learner.updates
         scale = c.critic_reward_scale
-        obs = env.reset_arrays(episode_seed(c.seed, self.episode))
-        log = EpisodeStats(env.config.n_agents, env.slot_behaviour.copy())
-        while env.agents:
-            if self.stop_requested:
-                return None
-            slots = env.live_slots
-            actions = learner.act_for(obs, slots, explore=True)
-            batch = env.step_arrays(actions)
+
+        def learn(obs: np.ndarray, actions: np.ndarray, batch: StepBatch) -> None:
             reward = (batch.reward * scale).astype(np.float32)
             step = Transitions(
-                obs, actions, reward, batch.next_obs, batch.terminated.astype(np.float32), slots
+                obs, actions, reward, batch.next_obs, batch.terminated.astype(np.float32), batch.slots
             )
             learner.learn(step, c.updates_per_step, self.update_log)
-            log.record(slots, batch)
-            obs = env.live_obs
+
+        log = drive_episode(
+            env,
+            env.reset_arrays(episode_seed(c.seed, self.episode)),
+            lambda obs, slots: learner.act_for(obs, slots, explore=True),
+            learn,
+            lambda: self.stop_requested,
+        )
+        if log is None:
+            return None
         return episode_row(
             self.episode, log, time.perf_counter() - start, learner.updates - updates_before, self.speed_limit
         )
