@@ -6,6 +6,8 @@ Imports run one way: env_core (config, step batch, the base class) <- paper_env,
 
 from __future__ import annotations
 
+from typing import Any
+
 from behaviors.drivers import make_driver
 from behaviors.env_core import (
     BEHAVIOURS,
@@ -38,46 +40,14 @@ __all__ = [
 
 
 def make_env(
-    scenario: str | Scenario = "ring",
-    *,
-    behaviour: str = "lanekeeping",
-    agents: int = 6,
-    overtakers: int = 0,
-    keepers: int = 0,
-    placement: str = "C",
-    opponents: int | None = None,
-    seed: int | None = None,
-    max_steps: int = 1000,
-    step_length: float = 0.2,
-    start_speed: float | None = None,
-    lane_weight: float = 0.0,
-    shield: bool = False,
-    driver: str = "paper",
-    render_mode: str | None = None,
+    scenario: str | Scenario = "ring", *, render_mode: str | None = None, **settings: Any
 ) -> BehaveEnv:
     """A native PettingZoo ParallelEnv with a batched array interface for trainers.
 
-    `driver="traffic"` (scenario "roads" or "ring"): agents among SUMO's traffic with the lane
-    observation and the traffic reward (see traffic_env.py)."""
-    return create_env(
-        EnvConfig(
-            scenario=scenario,
-            behaviour=behaviour,
-            agents=agents,
-            overtakers=overtakers,
-            keepers=keepers,
-            placement=placement,
-            opponents=opponents,
-            seed=seed,
-            max_steps=max_steps,
-            step_length=step_length,
-            start_speed=start_speed,
-            lane_weight=lane_weight,
-            shield=shield,
-            driver=driver,
-        ),
-        render_mode,
-    )
+    `settings`: any EnvConfig field by name (behaviour, agents, overtakers, keepers, seed, max_steps,
+    driver, ...), with EnvConfig's defaults. `driver="traffic"` (scenario "roads" or "ring"): agents
+    among SUMO's traffic with the lane observation and the traffic reward (see traffic_env.py)."""
+    return create_env(EnvConfig(scenario=scenario, **settings), render_mode)
 
 
 def create_env(config: EnvConfig, render_mode: str | None = None) -> BehaveEnv:

@@ -57,27 +57,29 @@ UPDATE_LOG_EVERY = 10
 update's three scalars took 0.4-0.7 ms against 11 ms per update here, 2% of a short run's wall time
 and 4% of its update time; blocks of 10 take 0.4% and 0.7%."""
 _LEARNER = DDPGConfig()
+_ENV = EnvConfig()
 
 
 @dataclass(frozen=True)
 class TrainConfig:
     """A training run; saved as config.json and checked again on --resume."""
 
-    behaviour: str = "lanekeeping"
+    # episode settings: the defaults are EnvConfig's, named alike (see env_config)
+    behaviour: str = _ENV.behaviour
     algo: str = "ps-ddpg"
-    scenario: str = "ring"
-    agents: int = 6
-    overtakers: int = 0
-    keepers: int = 0
-    placement: str = "C"
-    opponents: int | None = None
+    scenario: str = str(_ENV.scenario)
+    agents: int = _ENV.agents
+    overtakers: int = _ENV.overtakers
+    keepers: int = _ENV.keepers
+    placement: str = _ENV.placement
+    opponents: int | None = _ENV.opponents
     episodes: int = 100
-    max_steps: int = 1000
-    step_length: float = 0.2
+    max_steps: int = _ENV.max_steps
+    step_length: float = _ENV.step_length
     seed: int = 0
     updates_per_step: int | None = None  # None: one per live agent (the paper)
-    lane_weight: float = 0.0  # lane-discipline reward term; 0 = the paper's reward
-    driver: str = "paper"  # "traffic": lane observation, traffic reward, among SUMO's cars (scenario roads)
+    lane_weight: float = _ENV.lane_weight
+    driver: str = _ENV.driver
     # learner settings: the defaults are DDPGConfig's, named alike (one source of truth)
     hidden: tuple[int, ...] = _LEARNER.hidden
     batch_size: int = _LEARNER.batch_size
