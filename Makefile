@@ -1,36 +1,44 @@
 # Every target installs what it needs: on a fresh machine `make run` and
-# `make test` are the whole set-up.
+# `make test` are the whole set-up. `make run` installs only what running needs
+# (torch, SUMO and this package); the extras come with the targets that use them.
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+DEV_STAMP := $(VENV)/.installed-dev
 PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 WORKERS ?= 1
 
 .PHONY: setup run test typecheck lint bench soak learn-check pretrained paper realism own-nets dense flow clean
 
-setup: $(STAMP)
+setup: $(DEV_STAMP)
 
+# what running needs: the package without extras
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/pip install $(PIP_FLAGS) --upgrade pip
 	$(BIN)/pip install $(PIP_FLAGS) torch==2.13.0
 	$(BIN)/pip uninstall -y -q behave 2>/dev/null || true  # the distribution's former name
-	$(BIN)/pip install $(PIP_FLAGS) -e '.[dev,integrations,distributed]'
+	$(BIN)/pip install $(PIP_FLAGS) -e .
 	touch $(STAMP)
+
+# what the tests, the type check and the linter use: pytest, ruff, mypy, the RL integrations, Ray
+$(DEV_STAMP): $(STAMP)
+	$(BIN)/pip install $(PIP_FLAGS) -e '.[dev,integrations,distributed]'
+	touch $(DEV_STAMP)
 
 run: $(STAMP)
 	$(BIN)/behave populate --seed $(SEED) --keep-count --fcd runs/populate/fcd.xml --plot runs/populate/traces.png
 	$(BIN)/behave report runs/populate/fcd.xml --net sumo_scenarios/data/highway/highway.net.xml --out runs/populate
 
-test: $(STAMP)
+test: $(DEV_STAMP)
 	$(BIN)/python -m pytest
 
-typecheck: $(STAMP)
+typecheck: $(DEV_STAMP)
 	$(BIN)/mypy
 
-lint: $(STAMP)
+lint: $(DEV_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 
@@ -43,6 +51,7 @@ soak: $(STAMP)
 	$(BIN)/python benchmarks/soak.py --jobs 2
 
 learn-check: $(STAMP)
+	$(if $(filter-out 1,$(WORKERS)),$(BIN)/pip install $(PIP_FLAGS) -e '.[distributed]')
 	$(BIN)/python benchmarks/learn_check.py --seed $(SEED) --workers $(WORKERS)
 
 pretrained: $(STAMP)

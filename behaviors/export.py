@@ -359,10 +359,8 @@ def export_fcd(fcd: Path, fmt: str, *, net: Path | None, out: Path) -> list[Path
         raise BehaveError(f"FCD file not found: {fcd}")
     source_format = _fcd_format(fcd)
     projection = _projection_needed(fcd, fmt, net)
-    if not out.parent.is_dir():
-        raise BehaveError(f"output directory does not exist: {out.parent}")
     for name in _output_names(fmt, out.name).values():
-        check_output_path(out.with_name(name))
+        check_output_path(out.with_name(name))  # creates missing parent directories
     work = temp_dir(out)
     try:
         source = _traceable_fcd(fcd, source_format, work / "input.fcd.xml", net, projection)

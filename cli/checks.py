@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from pathlib import Path
 from typing import TypeVar
 
 import typer
 
 from behaviors.errors import BehaveError
+from sumo_scenarios import SCENARIO_NAMES, get_scenario
 
 N = TypeVar("N", int, float)
 
@@ -48,3 +50,30 @@ POSITIVE = number(strict=True)
 NON_NEGATIVE = number()
 """Counts that may be zero: agents of one kind, background cars, budgets."""
 SEED = number(high=SEED_MAX)
+
+
+def net_or_name(param: typer.CallbackParam, value: Path | None) -> Path | None:
+    """`--net`: a SUMO net file or a bundled scenario's name (`behave scenario list`: `--net motorway`).
+
+    A .sumocfg is a whole scenario, not a net: the error points to --sumocfg.
+    """
+    if value is None:
+        return None
+    option = param.opts[0]
+    if value.suffix == ".sumocfg":
+        raise BehaveError(
+            f"{option} {value} is a SUMO configuration, not a network: run it with "
+            f"`behave populate --sumocfg {value}`"
+        )
+    if value.exists() or value.suffix or value.parent != Path("."):
+        return value
+    if value.name in SCENARIO_NAMES:
+        return get_scenario(value.name).net
+    raise BehaveError(
+        f"{option} {value}: no such file and no bundled scenario of that name "
+        f"(give a .net.xml or one of {', '.join(SCENARIO_NAMES)})"
+    )
+
+
+NET = net_or_name
+"""The callback of every `--net` option."""

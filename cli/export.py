@@ -7,6 +7,7 @@ from typing import Annotated
 
 import typer
 
+from behaviors.cli.checks import NET
 from behaviors.export import EXPORT_FORMATS, export_fcd, read_fcd
 
 
@@ -20,7 +21,8 @@ def export_command(
         Path | None,
         typer.Option(
             help="the network (.net.xml or .net.xml.gz): projects metres to lon/lat for gpx/kml, "
-            "or a geo FCD back to metres for ns2/omnet/ipg"
+            "or a geo FCD back to metres for ns2/omnet/ipg; or a bundled scenario's name",
+            callback=NET,
         ),
     ] = None,
 ) -> None:
@@ -34,7 +36,10 @@ def plot_command(
     out: Annotated[Path, typer.Option(help="PNG to write")],
     geo: Annotated[bool, typer.Option(help="the FCD holds lon/lat")] = False,
     title: Annotated[str, typer.Option(help="figure title")] = "",
-    net: Annotated[Path | None, typer.Option(help="the network, for true lane widths")] = None,
+    net: Annotated[
+        Path | None,
+        typer.Option(help="the network (or a bundled scenario's name), for true lane widths", callback=NET),
+    ] = None,
 ) -> None:
     """Time-space diagram and lateral position over time, coloured by behaviour."""
     from behaviors.plot import plot_fcd  # matplotlib: only when plotting

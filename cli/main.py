@@ -9,12 +9,12 @@ from __future__ import annotations
 import functools
 import signal
 import sys
-from typing import NoReturn
+from typing import Annotated, NoReturn
 
 import typer
 from typer import _click as click
 
-from behaviors.cli import evaluate, export, populate, report, scenario, sweep, train
+from behaviors.cli import evaluate, export, policy, populate, report, scenario, sweep, train
 from behaviors.cli.group import QuickHelpGroup
 from behaviors.errors import BehaveError
 
@@ -27,6 +27,7 @@ app = typer.Typer(
     rich_markup_mode=None,  # plain help: rich's help renderer alone takes ~0.3 s to import
 )
 app.add_typer(scenario.app, name="scenario")
+app.add_typer(policy.app, name="policy")
 app.command("train")(train.train)
 app.command("populate")(populate.populate_command)
 app.command("export")(export.export_command)
@@ -34,6 +35,27 @@ app.command("plot")(export.plot_command)
 app.command("evaluate")(evaluate.evaluate_command)
 app.command("report")(report.report_command)
 app.command("sweep")(sweep.sweep_command)
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            typer.echo(f"behave {version('behave-traffic')}")
+        except PackageNotFoundError:  # run from a checkout that was never installed
+            typer.echo("behave (not installed: version unknown)")
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    show_version: Annotated[
+        bool,
+        typer.Option("--version", help="print the version and exit", is_eager=True, callback=_print_version),
+    ] = False,
+) -> None:
+    pass
 
 
 EXIT_CODES: dict[int, int] = {signal.SIGINT: 130, signal.SIGTERM: 143}

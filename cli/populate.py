@@ -12,7 +12,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 import behaviors
-from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED
+from behaviors.cli.checks import NET, NON_NEGATIVE, POSITIVE, SEED
 from behaviors.files import check_output_path
 from sumo_scenarios import get_scenario
 
@@ -26,7 +26,12 @@ DEFAULT_POLICY = Path(behaviors.__file__).parent / "pretrained" / "traffic.pt"
 
 def populate_command(
     net: Annotated[
-        Path | None, typer.Option(help="SUMO .net.xml (default: the bundled 3 km highway)")
+        Path | None,
+        typer.Option(
+            help="SUMO .net.xml or a bundled scenario's name (behave scenario list; default: the 3 km "
+            "highway)",
+            callback=NET,
+        ),
     ] = None,
     sumocfg: Annotated[
         Path | None,

@@ -9,6 +9,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from behaviors.cli.checks import NET
+
 GROUP_BY = ("type", "id-prefix")
 SKIP_S = 10.0
 """realism's groupings and skipped seconds, spelled out so that `--help` needs no pandas (a test keeps
@@ -18,7 +20,12 @@ them equal)."""
 def report_command(
     fcd: Annotated[Path, typer.Argument(help="FCD file (.xml, .csv or .parquet) of any SUMO run")],
     net: Annotated[
-        Path | None, typer.Option(help="the run's net: true lane widths, car lanes, left-hand traffic")
+        Path | None,
+        typer.Option(
+            help="the run's net (a file or a bundled scenario's name): true lane widths, car lanes, "
+            "left-hand traffic",
+            callback=NET,
+        ),
     ] = None,
     out: Annotated[
         Path | None, typer.Option(help="directory for realism.csv/.md/.png (default: beside the FCD)")
@@ -33,11 +40,15 @@ def report_command(
     """Lane use, lane changes, lateral acceleration, headways, passes, speeds and losses per group,
     and flow against density (flow.csv, flow.png)."""
     from behaviors.export import read_fcd
+    from behaviors.files import ensure_writable_dir
     from behaviors.realism import Lanes, agents_path, check_options, measure, read_agents, read_lanes, rows
     from behaviors.realism import write_report as write_realism
 
     check_options(skip_s, group_by)
     check_cells(cell_m, window_s)
+    out = out if out is not None else fcd.parent
+    if fcd.is_file():  # an unwritable --out fails now, not after the report (read_fcd names a missing FCD)
+        ensure_writable_dir(out)
     lanes = read_lanes(net) if net is not None else Lanes()
     agents = read_agents(agents_path(fcd))
     df = read_fcd(fcd)
@@ -51,7 +62,6 @@ def report_command(
     console.print(table)
     for note in report.notes:
         console.print(f"- {note}")
-    out = out if out is not None else fcd.parent
     cells, lines = fundamental_diagram(df, net, group_by, cell_m, window_s)
     typer.echo("\n".join(lines))
     for path in write_realism(report, out, title=fcd.name, extra=lines):

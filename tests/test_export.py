@@ -171,8 +171,12 @@ def test_bad_requests_are_refused(run: Path, tmp_path: Path) -> None:
         read_fcd(run / "missing.parquet")
     with pytest.raises(BehaveError, match="gpx needs lon/lat"):
         export_fcd(fcd, "gpx", net=None, out=tmp_path / "t.gpx")
-    with pytest.raises(BehaveError, match="output directory does not exist"):
-        export_fcd(fcd, "ns2", net=None, out=tmp_path / "nowhere" / "t.tcl")
+
+
+def test_missing_output_directories_are_created(run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "traces" / "deeper" / "mobility.tcl"
+    written = export_fcd(run / "run.xml", "ns2", net=None, out=out)
+    assert out in written and out.stat().st_size > 0
 
 
 def test_unwritable_output_dir_is_refused(run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

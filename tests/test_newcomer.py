@@ -1,0 +1,89 @@
+"""Issue 24, a newcomer's first hour: what `make run` installs, names where paths are taken, the small
+things a user meets first (`--version`, `policy list`, LICENSE, py.typed), errors before work."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from behaviors.cli.policy import MODEL_CARD, model_card_lines
+
+ROOT = Path(__file__).resolve().parents[1]
+BEHAVE = str(Path(sys.executable).parent / "behave")
+
+
+def behave(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([BEHAVE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+
+
+def one_line_error(result: subprocess.CompletedProcess[str]) -> str:
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("behave: error: "), result.stderr
+    return lines[0]
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="no make")
+def test_make_run_installs_no_extras_and_make_test_installs_what_tests_use(tmp_path: Path) -> None:
+    venv = str(tmp_path / "fresh")  # no venv there: make prints the whole set-up it would run
+    run = subprocess.run(["make", "-n", "run", f"VENV={venv}"], cwd=ROOT, capture_output=True, text=True,
+                         check=True).stdout  # fmt: skip
+    installs = [line for line in run.splitlines() if " install " in line]
+    assert any("torch==" in line for line in installs)
+    assert any(line.rstrip().endswith("-e .") for line in installs)
+    assert not any("[" in line for line in installs), installs  # no extras: no Ray, SB3, TorchRL, TensorBoard
+    test = subprocess.run(["make", "-n", "test", f"VENV={venv}"], cwd=ROOT, capture_output=True, text=True,
+                          check=True).stdout  # fmt: skip
+    assert "-e '.[dev,integrations,distributed]'" in test
+
+
+def test_version_and_policy_list(tmp_path: Path) -> None:
+    version = re.search(r'^version = "([^"]+)"', (ROOT / "pyproject.toml").read_text(), re.MULTILINE)[1]
+    result = behave("--version", cwd=tmp_path)
+    assert result.returncode == 0 and result.stdout.strip() == f"behave {version}"
+    listed = behave("policy", "list", cwd=tmp_path)
+    assert listed.returncode == 0, listed.stderr
+    for name in ("traffic", "lanekeeping", "overtaking", "multi"):
+        assert f"│ {name} " in listed.stdout
+    cards = model_card_lines(MODEL_CARD.read_text(encoding="utf-8"))
+    assert cards["traffic"][0].startswith("Traffic driver")
+    assert cards["traffic"][1].startswith("evaluation (")
+
+
+def test_project_files() -> None:
+    assert (ROOT / "LICENSE").read_text().startswith("MIT License")
+    assert "Parameter Sharing Reinforcement Learning" in (ROOT / "CITATION.cff").read_text()
+    assert (ROOT / "behaviors" / "py.typed").is_file()
+    assert re.search(r'^behaviors = \[.*"py.typed"', (ROOT / "pyproject.toml").read_text(), re.MULTILINE)
+
+
+def test_net_takes_a_scenario_name(tmp_path: Path) -> None:
+    result = behave("populate", "--net", "tiny", "--duration", "4", "--keepers", "1", "--overtakers", "0",
+                    "--background", "2", "--fcd", "out/fcd.xml", cwd=tmp_path)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert "<timestep" in (tmp_path / "out" / "fcd.xml").read_text()  # the missing folder was created
+    assert "tiny.net.xml" in result.stdout
+
+
+def test_net_errors_are_one_line(tmp_path: Path) -> None:
+    sumocfg = one_line_error(behave("populate", "--net", "mine.sumocfg", cwd=tmp_path))
+    assert "--sumocfg mine.sumocfg" in sumocfg
+    unknown = one_line_error(behave("report", "x.xml", "--net", "motorwy", cwd=tmp_path))
+    assert "motorway" in unknown and "no bundled scenario" in unknown
+
+
+def test_report_out_unwritable_fails_before_reading_the_fcd(tmp_path: Path) -> None:
+    fcd = tmp_path / "fcd.xml"
+    fcd.write_text("not an FCD at all")  # reading it would fail: the error must be about --out
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    start = time.perf_counter()
+    error = one_line_error(behave("report", str(fcd), "--out", str(blocker / "report"), cwd=tmp_path))
+    assert "a-file/report" in error and "cannot create output directory" in error
+    assert time.perf_counter() - start < 60
