@@ -203,7 +203,7 @@ class LaneDriving:
     keep_right: bool = True  # the traffic rules below; False: the policy's lane choice alone
     free_ahead: float = 60.0  # m: the slow-side lane is free for keeping right beyond max(this, 3 s at speed)
     free_ahead_s: float = 3.0
-    keep_right_reach: float = 300.0  # m: a slow-side lane kept to leads on this far or as far as the own
+    keep_right_reach: float = 1000.0  # m: a slow-side lane kept to leads on this far, and as far as the own
     polite_decel: float = 0.5  # m/s^2: keeping right asks no harder braking of the new follower
     diagonal_headway: float = 0.3  # s: kept behind the fast-side lane's leader not to be passed
     pass_margin: float = 1.0  # m/s: a leader this much slower than the car wants is a reason to pass
@@ -292,9 +292,9 @@ def slow_side_free(
     """[N] bool: nobody in the slow-side lane for max(`free_ahead` m, `free_ahead_s` at speed) ahead,
     nobody behind there who would have to brake for the car moving in (`polite_decel`): keeping
     right is no reason to cut in; and that lane leads on along the route as far as the own one does
-    or `keep_right_reach` (an exit lane is not kept to). `gap`/`other_speed` [N, 6] as in
-    `gap_acceptable` (gap 0 = no lane or alongside); `lane_leads_on` [N, 3] metres (own, fast side,
-    slow side), None: every lane leads on."""
+    and at least `keep_right_reach` (an exit, a lane drop or an acceleration lane is not kept to).
+    `gap`/`other_speed` [N, 6] as in `gap_acceptable` (gap 0 = no lane or alongside);
+    `lane_leads_on` [N, 3] metres (own, fast side, slow side), None: every lane leads on."""
     behind = np.nan_to_num(other_speed[:, 5])
     theirs = np.where(
         np.isfinite(gap[:, 5]), following_accel(behind, behind, gap[:, 5], speed, lateral.following), 0.0
@@ -302,7 +302,8 @@ def slow_side_free(
     ahead_free = gap[:, 4] > np.maximum(lateral.free_ahead, lateral.free_ahead_s * speed)
     free = ahead_free & (gap[:, 5] > 0) & (theirs >= -lateral.polite_decel)
     if lane_leads_on is not None:
-        free &= lane_leads_on[:, 2] >= np.minimum(lane_leads_on[:, 0], lateral.keep_right_reach)
+        slow = lane_leads_on[:, 2]
+        free &= (slow >= lane_leads_on[:, 0]) & (slow >= lateral.keep_right_reach)
     return free
 
 

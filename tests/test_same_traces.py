@@ -77,7 +77,7 @@ def sha256(path: Path) -> str:
 RECORDED = {
     "highway_traffic": "f262a56fdbf23797b78a454d827006523d96c811b7d4c81645cc04a17d9bc7d6",
     "highway_paper": "c71e6c70a84e8053750d5bd1770a37bf2f5095115cadc1eb75e33580b00da5d3",
-    "share_lanedrop": "1221983aad8375e3425b237c3986b2de055823015fd752123a2fce78d5c72d39",
+    "share_lanedrop": "6d84f31fd8fd0730bff6853d8fae119678dd3f58241a1cdc472575b8f924bac1",
 }
 """sha256 of each case's FCD (csv), recorded on the code before the driver became one object (the
 traffic case again when lane changes began to wait for an acceptable gap, and both traffic-driver
