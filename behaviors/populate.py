@@ -49,6 +49,7 @@ from behaviors.files import atomic_path, check_output_path, temp_path
 from behaviors.geometry import CAR_CLASS, RoadGeometry, load_geometry
 from behaviors.policy import PRETRAINED, Policy, load_policy
 from behaviors.scenario_config import LATERAL_RESOLUTION, ScenarioConfig, read_sumocfg, share_draw
+from behaviors.sensors import crowded
 from behaviors.sim import SimOptions, SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
 from behaviors.traffic_env import desired_fractions
@@ -57,6 +58,8 @@ from sumo_scenarios import get_scenario
 BACKGROUND_TYPE = "behave_background"
 CAR_FOOTPRINT = 15.0
 """Metres of lane one car needs (length + gaps at speed) when checking what a net can hold."""
+INSERT_CLEARANCE = 6.0
+"""m between a newly inserted car's front and any other's, or it is withdrawn and put elsewhere."""
 DEFAULT_POLICY = PRETRAINED / "traffic.pt"
 
 
@@ -542,8 +545,14 @@ class Population:
         """Pending vehicles that SUMO placed join; the others are withdrawn and retried."""
         sim = self.sim
         assert sim is not None
-        joined = [v for v in self.pending if v in present]
-        failed = [v for v in self.pending if v not in present]
+        placed = [v for v in self.pending if v in present]
+        assert self.vehicles is not None
+        rows = np.array([present[v] for v in placed], np.int64)
+        beside = crowded(self.vehicles.position, rows, INSERT_CLEARANCE).tolist()
+        joined = [v for v, near in zip(placed, beside, strict=True) if not near]
+        put_beside = [v for v, near in zip(placed, beside, strict=True) if near]
+        self.vehicles = self.vehicles.without(put_beside)  # withdrawn below: nobody senses them
+        failed = [v for v in self.pending if v not in present] + put_beside
         agents = [v for v in joined if self.pending[v] != "background"]
         if agents:
             behaviour = np.array([1.0 if self.pending[v] == "overtaker" else 0.0 for v in agents])

@@ -322,3 +322,14 @@ def _flat_cell(
     x = np.clip(cell[:, 0], reach, columns - reach - 1)
     y = np.clip(cell[:, 1], reach, rows - reach - 1)
     return x * rows + y
+
+
+def crowded(position: np.ndarray, rows: np.ndarray, radius: float) -> np.ndarray:
+    """[len(rows)] bool: whether another vehicle's front lies within `radius` of the front of each
+    vehicle in `rows` (of `position` [M, 2]). SUMO inserts a car where its lane is free but does not
+    see a learned car moving over from the next lane: a car put down beside one was hit within a
+    second, so populate puts it elsewhere."""
+    q, _, _, _, _ = neighbours(position[rows], position, radius, rows)
+    out = np.zeros(len(rows), bool)
+    out[q] = True
+    return out

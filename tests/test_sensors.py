@@ -274,3 +274,13 @@ def test_opponent_grid_handles_points_on_the_bounding_box_edge():
     heading = rng.uniform(-np.pi, np.pi, 1000)
     rays = opponent_rays(points[:1000], heading, points, np.arange(1000))
     assert rays.shape == (1000, 36) and np.all(rays <= RAY_RANGE)
+
+
+def test_a_car_put_down_beside_another_is_crowded():
+    from behaviors.sensors import crowded
+
+    position = np.array([[0.0, 0.0], [3.0, 2.0], [40.0, 0.0], [43.0, 3.5], [100.0, 0.0]])
+    # new cars: row 1 (3.6 m from row 0's front), row 3 (4.6 m from row 2's), row 4 (alone)
+    assert crowded(position, np.array([1, 3, 4]), 6.0).tolist() == [True, True, False]
+    assert crowded(position, np.array([1, 3, 4]), 4.0).tolist() == [True, False, False]
+    assert crowded(position, np.array([], np.int64), 6.0).tolist() == []
