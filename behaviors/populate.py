@@ -217,6 +217,7 @@ class PopulateSummary:
     handovers: int = 0  # times SUMO's driver took an agent (exits, lane drops, one-lane roads, signals)
     scenario_cars: int = 0  # the sumocfg's passenger cars that departed
     scenario_agents: int = 0  # ... of which became agents (--share)
+    scenario_not_car_sized: int = 0  # ... drawn by --share but left to SUMO: not a car's size (CAR_SIZE_M)
     simulated_s: float = 0.0
     wall_s: float = 0.0
     speed_sum: dict[str, float] = field(default_factory=lambda: {"keeper": 0.0, "overtaker": 0.0})
@@ -224,6 +225,7 @@ class PopulateSummary:
     ended: dict[str, int] = field(default_factory=lambda: dict.fromkeys(END_REASONS, 0))
     long_standstills: int = 0  # agents that stood still for LONG_STANDSTILL_S or more at a time
     longest_standstill_s: float = 0.0
+    sumo: SumoCars | None = None  # SUMO's own vehicles, measured as the agents are
     phases: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -241,7 +243,11 @@ class PopulateSummary:
             "shield_speed_cuts": self.speed_cuts,
             "handovers_to_sumo": self.handovers,
             **(
-                {"scenario_passenger_cars": self.scenario_cars, "of_them_agents": self.scenario_agents}
+                {
+                    "scenario_passenger_cars": self.scenario_cars,
+                    "of_them_agents": self.scenario_agents,
+                    "left_to_sumo_not_car_sized": self.scenario_not_car_sized,
+                }
                 if self.scenario_cars
                 else {}
             ),
@@ -255,6 +261,11 @@ class PopulateSummary:
         out.update({f"agents_{reason}": n for reason, n in self.ended.items()})
         out[f"agents_standing_{LONG_STANDSTILL_S:.0f}s"] = self.long_standstills
         out["longest_standstill_s"] = self.longest_standstill_s
+        if self.sumo is not None:  # SUMO's own vehicles beside the agents
+            if self.sumo.steps:
+                out["sumo_mean_speed"] = self.sumo.speed_sum / self.sumo.steps
+            out[f"sumo_standing_{LONG_STANDSTILL_S:.0f}s"] = self.sumo.long_standstills
+            out["sumo_longest_standstill_s"] = self.sumo.longest_standstill_s
         return out
 
     def count_agents(self, ended: EndedAgents, driving: list[AgentRow]) -> None:
@@ -275,6 +286,48 @@ STANDSTILL_SPEED = 0.1
 """m/s: SUMO speeds below this count as standing still."""
 LONG_STANDSTILL_S = 30.0
 """Standing still this long at a time is reported (a car waiting at a light, or stuck)."""
+CAR_SIZE_M = {"length": (2.5, 7.5), "width": (1.2, 2.3)}
+"""The sizes (m, inclusive) of a vehicle --share may turn into an agent (behave's agents are 5 m x 1.8 m):
+a vehicle of vClass passenger outside them (a 12 m vType that sets no vClass) is left to SUMO."""
+
+
+def car_sized(length: float, width: float) -> bool:
+    (short, long), (narrow, wide) = CAR_SIZE_M["length"], CAR_SIZE_M["width"]
+    return short <= length <= long and narrow <= width <= wide
+
+
+class SumoCars:
+    """SUMO's own vehicles (every vehicle that is not an agent), measured as the agents are: their mean
+    speed over vehicle-steps and standstills (below STANDSTILL_SPEED, LONG_STANDSTILL_S or more at a
+    time), so that a summary can show agents beside the cars SUMO drives on the same roads."""
+
+    def __init__(self, dt: float) -> None:
+        self.dt = dt
+        self.speed_sum, self.steps = 0.0, 0
+        self.standing: dict[str, float] = {}  # vehicle id -> seconds it has stood so far
+        self.long_standstills, self.longest_standstill_s = 0, 0.0
+
+    def observe(self, ids: tuple[str, ...], speed: np.ndarray, sumo: np.ndarray) -> None:
+        """One step's speeds of the vehicles `ids`; `sumo` marks those SUMO drives on its own."""
+        self.speed_sum += float(speed[sumo].sum())
+        self.steps += int(sumo.sum())
+        now = {ids[k] for k in np.flatnonzero(sumo & (speed < STANDSTILL_SPEED)).tolist()}
+        for vid in [v for v in self.standing if v not in now]:  # moved again, or left
+            self._close(self.standing.pop(vid))
+        for vid in now:
+            self.standing[vid] = self.standing.get(vid, 0.0) + self.dt
+
+    def finish(self) -> None:
+        """Close the standstills still going at the end of the run."""
+        for seconds in self.standing.values():
+            self._close(seconds)
+        self.standing = {}
+
+    def _close(self, seconds: float) -> None:
+        self.long_standstills += seconds >= LONG_STANDSTILL_S
+        self.longest_standstill_s = max(self.longest_standstill_s, seconds)
+
+
 INCIDENT_COLUMNS = ("incident_side", "incident_lane", "incident_lane_offset_m", "incident_other",
                     "incident_speed_mps", "incident_other_speed_mps", "incident_headway_s",
                     "incident_lateral_gap_m")  # fmt: skip
@@ -485,7 +538,7 @@ class Population:
         self.timer = PhaseTimer()
         driver = make_driver(self.policy.driver)
         self.fleet = Fleet(self.geometry, CarModel(), config.step_length, self.timer, driver, config.shield)
-        self.summary = PopulateSummary()
+        self.summary = PopulateSummary(sumo=SumoCars(config.step_length))
         self.log = AgentLog(config.step_length)
         self.routes: RoutePool | None = None  # made with the simulation it hands routes to
         self.counter = {"keeper": 0, "overtaker": 0, "background": 0}
@@ -596,6 +649,7 @@ class Population:
         gone = rows < 0
         if len(fleet):
             self._observe_agents(~gone, vehicles.speed[rows[~gone]])
+        self._observe_sumo(vehicles, rows[~gone])
         leaving = crashed | off_track | gone
         if leaving.any():  # most steps nobody leaves: no per-agent reasons to build
             reasons = end_reasons(crashed, off_track, gone, self._arrived(gone, arrived))
@@ -629,8 +683,10 @@ class Population:
         assert sim is not None
         cars = [v for v in departed if sim.vehicle_class(v) == CAR_CLASS]
         draws = {v: share_draw(c.seed, v) for v in cars}
-        agents = [v for v in cars if draws[v] < c.share]
+        drawn = [v for v in cars if draws[v] < c.share]
+        agents = [v for v in drawn if car_sized(*sim.vehicle_size(v))]  # a bus typed passenger stays SUMO's
         self.summary.scenario_cars += len(cars)
+        self.summary.scenario_not_car_sized += len(drawn) - len(agents)
         self.summary.scenario_agents += len(agents)
         if not agents:
             return
@@ -650,6 +706,13 @@ class Population:
         for name, mask in (("overtaker", overtaker), ("keeper", ~overtaker)):
             self.summary.speed_sum[name] += float(speed[mask].sum())
             self.summary.speed_steps[name] += int(mask.sum())
+
+    def _observe_sumo(self, vehicles: VehicleState, agent_rows: np.ndarray) -> None:
+        """SUMO's own vehicles' speeds after a step: every vehicle but the agents (`agent_rows`)."""
+        assert self.summary.sumo is not None
+        sumo = np.ones(len(vehicles.ids), bool)
+        sumo[agent_rows] = False
+        self.summary.sumo.observe(vehicles.ids, vehicles.speed, sumo)
 
     def _incidents(
         self, reasons: np.ndarray, before: VehicleState | None, other: dict[str, str]
@@ -835,6 +898,8 @@ def populate(
         finish_fcd(partial, config.fcd, config, last_time)
         write_agents_csv(agents_csv_path(config.fcd), population.log.ended, driving)
         population.summary.count_agents(population.log.ended, driving)
+        if population.summary.sumo is not None:
+            population.summary.sumo.finish()
     finally:
         population.close()
         population.log.ended.close()

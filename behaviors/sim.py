@@ -352,6 +352,10 @@ class SumoSim:
     def vehicle_class(self, vid: str) -> str:
         return self._sumo.vehicle.getVehicleClass(vid)
 
+    def vehicle_size(self, vid: str) -> tuple[float, float]:
+        """(length, width) in m of a vehicle's type."""
+        return self._sumo.vehicle.getLength(vid), self._sumo.vehicle.getWidth(vid)
+
     def set_type(self, vid: str, vtype: str) -> None:
         self._sumo.vehicle.setType(vid, vtype)
 

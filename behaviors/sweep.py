@@ -357,8 +357,9 @@ def realism_figures(df: pd.DataFrame, lanes: Any, agents: pd.DataFrame | None) -
 # --- rows and the table ----------------------------------------------------------------------------
 
 
-SUMMARY_FILL = {"scenario_passenger_cars": 0, "of_them_agents": 0, "keeper_mean_speed": math.nan,
-                "overtaker_mean_speed": math.nan}  # fmt: skip
+SUMMARY_FILL = {"scenario_passenger_cars": 0, "of_them_agents": 0, "left_to_sumo_not_car_sized": 0,
+                "keeper_mean_speed": math.nan, "overtaker_mean_speed": math.nan,
+                "sumo_mean_speed": math.nan}  # fmt: skip
 """Summary figures populate leaves out when they do not apply: every row has them."""
 
 

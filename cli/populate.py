@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
@@ -15,6 +15,9 @@ import behaviors
 from behaviors.cli.checks import NET, NON_NEGATIVE, POSITIVE, SEED
 from behaviors.files import check_output_path
 from sumo_scenarios import get_scenario
+
+if TYPE_CHECKING:
+    from behaviors.populate import PopulateConfig  # torch: only when run
 
 DEFAULTS = SimpleNamespace(
     net=get_scenario("highway").net, overtakers=4, keepers=4, background=20, duration=180.0,
@@ -115,6 +118,14 @@ def populate_command(
         str, typer.Option(help="actor arithmetic: auto (bfloat16 where the CPU has it), float32, bfloat16")
     ] = DEFAULTS.precision,
     plot: Annotated[Path | None, typer.Option(help="also draw the traces into this PNG")] = None,
+    json_out: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="print the summary as one JSON object on stdout (other messages go to stderr) instead of "
+            "the table",
+        ),
+    ] = False,
 ) -> None:
     """Drive learned keepers and overtakers (one batched policy call per step) and write SUMO FCD."""
     from behaviors.populate import agents_csv_path, config_from, populate  # torch: only when run
@@ -127,7 +138,7 @@ def populate_command(
     )  # fmt: skip
     columns = (TextColumn("simulating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
                TimeElapsedColumn())  # fmt: skip
-    progress = Progress(*columns, transient=True)
+    progress = Progress(*columns, transient=True, console=Console(stderr=json_out))
     task = progress.add_task("populate", total=config.duration)
 
     def advance(simulated: float) -> None:
@@ -144,6 +155,11 @@ def populate_command(
     finally:
         if progress.live.is_started:
             progress.stop()
+    if json_out:
+        import json
+
+        summary_dict = {**summary.as_dict(), "fcd": str(fcd), "agents_csv": str(agents_csv_path(fcd))}
+        typer.echo(json.dumps({**summary_dict, "net": str(config.net), "seed": seed}))
     table = Table(title=f"behave populate: {config.net.name}, seed {seed}")
     table.add_column("metric")
     table.add_column("value", justify="right")
@@ -151,12 +167,13 @@ def populate_command(
         text = f"{value:,.2f}" if isinstance(value, float) else f"{value:,}"
         if key.endswith("mean_speed"):
             text = f"{value:.1f} m/s ({3.6 * value:.0f} km/h) from SUMO"
-        if key == "longest_standstill_s":
+        if key.endswith("longest_standstill_s"):
             text = f"{value:.1f} s"
         table.add_row(key.replace("_", " "), text)
-    Console().print(table)
-    typer.echo(f"FCD written to {fcd}")
-    typer.echo(f"per-agent table written to {agents_csv_path(fcd)}")
+    if not json_out:
+        Console().print(table)
+    typer.echo(f"FCD written to {fcd}", err=json_out)
+    typer.echo(f"per-agent table written to {agents_csv_path(fcd)}", err=json_out)
     if plot is not None:
         from behaviors.export import read_fcd
         from behaviors.plot import plot_fcd
@@ -164,6 +181,16 @@ def populate_command(
         plot_fcd(
             read_fcd(fcd, geo=geo),
             plot,
-            title=f"{config.net.name}: {config.keepers} keepers, {config.overtakers} overtakers",
+            title=plot_title(config),
         )
-        typer.echo(f"plot written to {plot}")
+        typer.echo(f"plot written to {plot}", err=json_out)
+
+
+def plot_title(config: PopulateConfig) -> str:
+    """What the run was: the net and its agents, or the sumocfg and the share of its cars that drove."""
+    if config.sumocfg is None:
+        return f"{config.net.name}: {config.keepers} keepers, {config.overtakers} overtakers"
+    return (
+        f"{config.sumocfg.name}: {config.share:g} of its passenger cars learned "
+        f"({config.overtaker_fraction:g} of them overtakers), seed {config.seed}"
+    )

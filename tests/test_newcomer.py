@@ -3,6 +3,7 @@ things a user meets first (`--version`, `policy list`, LICENSE, py.typed), error
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import subprocess
@@ -11,8 +12,11 @@ import time
 from pathlib import Path
 
 import pytest
+from test_own_scenario import netconvert
 
 from behaviors.cli.policy import MODEL_CARD, model_card_lines
+from behaviors.export import read_fcd
+from behaviors.populate import KEEPER_TYPE, OVERTAKER_TYPE
 
 ROOT = Path(__file__).resolve().parents[1]
 BEHAVE = str(Path(sys.executable).parent / "behave")
@@ -87,3 +91,55 @@ def test_report_out_unwritable_fails_before_reading_the_fcd(tmp_path: Path) -> N
     error = one_line_error(behave("report", str(fcd), "--out", str(blocker / "report"), cwd=tmp_path))
     assert "a-file/report" in error and "cannot create output directory" in error
     assert time.perf_counter() - start < 60
+
+
+def long_vehicles_scenario(tmp: Path) -> Path:
+    """A 3-lane road fed by cars and by 12 m vehicles whose vType sets no vClass (so SUMO takes them
+    for passenger cars, as in the eclipse-sumo wheel's tools/game ramp scenario)."""
+    folder = tmp / "scenario"
+    folder.mkdir()
+    netconvert(folder, "road", '<node id="a" x="0" y="0"/><node id="b" x="600" y="0"/>',
+               '<edge id="r" from="a" to="b" numLanes="3" speed="30"/>')  # fmt: skip
+    (folder / "demand.rou.xml").write_text(
+        '<routes><vType id="car" vClass="passenger"/><vType id="long" length="12" maxSpeed="25"/>'
+        '<flow id="car" type="car" begin="0" end="30" vehsPerHour="1800" departLane="random" '
+        'departSpeed="max"><route edges="r"/></flow>'
+        '<flow id="long" type="long" begin="0" end="30" vehsPerHour="1800" departLane="random" '
+        'departSpeed="max"><route edges="r"/></flow></routes>'
+    )
+    cfg = folder / "road.sumocfg"
+    cfg.write_text(
+        '<configuration><input><net-file value="road.net.xml"/><route-files value="demand.rou.xml"/></input>'
+        '<time><begin value="0"/><end value="30"/></time></configuration>'
+    )
+    return cfg
+
+
+def test_share_leaves_vehicles_of_another_size_to_sumo_and_json_has_sumos_figures(tmp_path: Path) -> None:
+    cfg = long_vehicles_scenario(tmp_path)
+    fcd = tmp_path / "out" / "fcd.xml"
+    result = behave("populate", "--sumocfg", str(cfg), "--share", "0.5", "--fcd", str(fcd), "--json",
+                    "--plot", str(tmp_path / "out" / "traces.png"), cwd=tmp_path)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert summary["scenario_passenger_cars"] >= 20  # cars and 12 m vehicles alike have vClass passenger
+    assert summary["left_to_sumo_not_car_sized"] >= 3
+    assert summary["of_them_agents"] >= 3
+    assert summary["sumo_mean_speed"] > 0 and "sumo_standing_30s" in summary
+    assert summary["fcd"] == str(fcd)
+    trace = read_fcd(fcd)
+    long_ids = set(trace.loc[trace["id"].str.startswith("long"), "id"])
+    agent_ids = set(trace.loc[trace["type"].isin({KEEPER_TYPE, OVERTAKER_TYPE}), "id"])
+    assert long_ids and agent_ids and not long_ids & agent_ids  # no 12 m vehicle became a 5 m agent
+    assert set(trace.loc[trace["id"].isin(long_ids), "type"]) == {"long"}
+
+
+def test_plot_titles_say_what_the_run_was(tmp_path: Path) -> None:
+    from behaviors.cli.populate import plot_title
+    from behaviors.populate import config_from
+
+    cfg = long_vehicles_scenario(tmp_path)
+    assert plot_title(config_from(cfg, share=0.25, seed=3)).startswith(
+        "road.sumocfg: 0.25 of its passenger cars"
+    )
+    assert plot_title(config_from(None, keepers=2, overtakers=1)).endswith(": 2 keepers, 1 overtakers")
