@@ -39,16 +39,20 @@ def report_command(
 ) -> None:
     """Lane use, lane changes, lateral acceleration, headways, passes, speeds and losses per group,
     and flow against density (flow.csv, flow.png)."""
-    from behaviors.export import read_fcd
+    from behaviors.errors import BehaveError
     from behaviors.files import ensure_writable_dir
+
+    if not fcd.is_file():  # before pandas and matplotlib load: a typo is answered at once
+        raise BehaveError(f"FCD file not found: {fcd}")
+    out = out if out is not None else fcd.parent
+    ensure_writable_dir(out)  # an unwritable --out fails now, not after the whole report
+
+    from behaviors.export import read_fcd
     from behaviors.realism import Lanes, agents_path, check_options, measure, read_agents, read_lanes, rows
     from behaviors.realism import write_report as write_realism
 
     check_options(skip_s, group_by)
     check_cells(cell_m, window_s)
-    out = out if out is not None else fcd.parent
-    if fcd.is_file():  # an unwritable --out fails now, not after the report (read_fcd names a missing FCD)
-        ensure_writable_dir(out)
     lanes = read_lanes(net) if net is not None else Lanes()
     agents = read_agents(agents_path(fcd))
     df = read_fcd(fcd)

@@ -143,3 +143,17 @@ def test_plot_titles_say_what_the_run_was(tmp_path: Path) -> None:
         "road.sumocfg: 0.25 of its passenger cars"
     )
     assert plot_title(config_from(None, keepers=2, overtakers=1)).endswith(": 2 keepers, 1 overtakers")
+
+
+def test_report_of_a_missing_fcd_answers_before_loading_pandas(tmp_path: Path) -> None:
+    code = (
+        "import sys\nfrom behaviors.cli.main import app\n"
+        "try:\n    app(['report', 'missing.xml'], standalone_mode=False)\n"
+        "except Exception as exc:\n    print(type(exc).__name__, exc)\n"
+        "print('pandas loaded:', 'pandas' in sys.modules)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True,
+                            timeout=120, check=True)  # fmt: skip
+    assert "BehaveError FCD file not found: missing.xml" in result.stdout
+    assert "pandas loaded: False" in result.stdout
+    assert not (tmp_path / "realism.csv").exists()
