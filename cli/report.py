@@ -28,7 +28,8 @@ def report_command(
         ),
     ] = None,
     out: Annotated[
-        Path | None, typer.Option(help="directory for realism.csv/.md/.png (default: beside the FCD)")
+        Path | None,
+        typer.Option(help="directory for realism.csv/.md/.png and flow.csv/.png (default: beside the FCD)"),
     ] = None,
     skip_s: Annotated[float, typer.Option(help="seconds left out at the start of each car")] = SKIP_S,
     group_by: Annotated[
