@@ -203,6 +203,8 @@ class LaneDriving:
     keep_right: bool = True  # the traffic rules below; False: the policy's lane choice alone
     free_ahead: float = 60.0  # m: the slow-side lane is free for keeping right beyond max(this, 3 s at speed)
     free_ahead_s: float = 3.0
+    ending_lane_m: float = 350.0  # a change into a lane that stops leading on within max(this,
+    ending_lane_s: float = 14.0  # this at speed) is no change: SUMO would take the car right back
     keep_right_reach: float = 1000.0  # m: a slow-side lane kept to leads on this far, and as far as the own
     polite_decel: float = 0.5  # m/s^2: keeping right asks no harder braking of the new follower
     diagonal_headway: float = 0.3  # s: kept behind the fast-side lane's leader not to be passed
@@ -406,6 +408,9 @@ def actuate_lanes(
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
     acceptable = gap_acceptable(speed, desired_speed, gap, other_speed, lateral)
+    if lateral.keep_right and lane_leads_on is not None:  # nor into a lane that ends before long
+        soon = np.maximum(lateral.ending_lane_m, lateral.ending_lane_s * speed)
+        acceptable &= lane_leads_on[:, 1:] >= soon[:, None]
     free = slow_side_free(speed, gap, other_speed, lateral, lane_leads_on) if lateral.keep_right else None
     held = held_up(speed, desired_speed, gap, other_speed, lateral) if lateral.keep_right else None
     heading = lane_intent(
