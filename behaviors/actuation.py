@@ -207,6 +207,7 @@ class LaneDriving:
     ending_lane_s: float = 14.0  # this at speed) is no change: SUMO would take the car right back
     keep_right_reach: float = 1000.0  # m: a slow-side lane kept to leads on this far, and as far as the own
     polite_decel: float = 0.5  # m/s^2: keeping right asks no harder braking of the new follower
+    min_time_headway: float = 1.1  # s: the policy's accel may not push the car closer behind its leader
     diagonal_headway: float = 0.3  # s: kept behind the fast-side lane's leader not to be passed
     pass_margin: float = 1.0  # m/s: a leader this much slower than the car wants is a reason to pass
     no_undertaking_above: float = (
@@ -441,7 +442,11 @@ def actuate_lanes(
     if lateral.keep_right:  # the target lane's leader and the fast-side leader bound the policy too
         bound = np.where(heading != 0, into, np.inf)
         bound = np.minimum(bound, not_undertaking(speed, desired_speed, gap, other_speed, lateral))
-        command = np.minimum(follow + adjust, bound)
+        closest = replace(lateral.following, time_headway=lateral.min_time_headway)  # no tailgating
+        bound = np.minimum(
+            bound, following_accel(speed, desired_speed, gap[:, 0], other_speed[:, 0], closest)
+        )
+        command = np.minimum(follow + adjust, bound)  # closest >= follow: it only limits a push
     else:
         command = np.minimum(follow, into) + adjust
     command = np.clip(command, -car.max_brake, car.max_accel)

@@ -829,3 +829,16 @@ def test_an_agent_given_back_has_its_own_vtype_and_exact_sideways_moves_again(tm
         sim.command_agents(["agent"], np.array([25.0]), np.array([0.3]))
         sim.step()
         assert float(sim.read_agents(["agent"]).lateral_pos[0]) - before == pytest.approx(0.3, abs=1e-6)
+
+
+def test_the_policy_cannot_push_a_car_closer_than_the_minimum_headway():
+    car, v = CarModel(), 25.0
+    gap, other = leaders_of(lead=(0, 2.0 + 1.0 * v, v))  # 1 s behind a leader at the same speed
+    args = (np.array([v]), np.array([30.0]), gap, other, np.zeros(1), np.zeros(1), np.array([0]),
+            np.zeros(1), np.array([3.5]), np.array([1]), np.array([1]), np.zeros(1), np.array([5.25]),
+            np.array([33.3]), 0.2, car)  # fmt: skip
+    full_throttle = np.array([[0.0, 1.0, 0.0]])
+    assert actuate_lanes(full_throttle, *args, LaneDriving()).actuation.speed[0] <= v
+    assert actuate_lanes(full_throttle, *args, MECHANICS).actuation.speed[0] > v  # the rules off: it may
+    gap[0, 0] = 2.0 + 2.0 * v  # 2 s behind: the push is the policy's
+    assert actuate_lanes(full_throttle, *args, LaneDriving()).actuation.speed[0] > v
