@@ -272,7 +272,8 @@ def lane_intent(
     wish = np.where(steer > lateral.change_threshold, 1, np.where(steer < -lateral.change_threshold, -1, 0))
     if slow_side_free is not None:  # a wish for a lane that is not there is no wish
         possible = np.where(wish > 0, lanes_fast > 0, np.where(wish < 0, lanes_slow > 0, True))
-        wish = np.where(possible & ((wish <= 0) | (held_up is None) | held_up), wish, 0)
+        may_pass = np.ones(len(wish), bool) if held_up is None else held_up
+        wish = np.where(possible & ((wish <= 0) | may_pass), wish, 0)
         wish = np.where((wish == 0) & slow_side_free, -1, wish)
     crossed = changing * lane_offset < -lateral.arrived * lane_width
     vanished = np.where(changing > 0, lanes_fast == 0, np.where(changing < 0, lanes_slow == 0, False))
