@@ -57,7 +57,10 @@ def test_version_and_policy_list(tmp_path: Path) -> None:
         assert f"│ {name} " in listed.stdout
     cards = model_card_lines(MODEL_CARD.read_text(encoding="utf-8"))
     assert cards["traffic"][0].startswith("Traffic driver")
-    assert cards["traffic"][1].startswith("evaluation (")
+    assert cards["lanekeeping"][1].startswith("evaluation (")
+    assert all(cards[name][1] for name in ("traffic", "lanekeeping", "overtaking", "multi"))
+    section = "## Mine (mine.pt)\n- command: x\n- screens of episode 9: ok\n- evaluation (1 episode): good\n"
+    assert model_card_lines(section) == {"mine": ("Mine", "evaluation (1 episode): good")}
 
 
 def test_project_files() -> None:
