@@ -282,11 +282,12 @@ def steering_policy(tmp: Path, steer: float) -> Path:
 
 
 def test_every_collision_and_off_track_is_explained_in_the_agents_table(tmp_path):
-    """Keepers that all steer left, unshielded, among SUMO's cars: those in the left lane leave the
-    road by its left edge, some of the others side-swipe the cars in the lane beside them."""
+    """Keepers that all steer left, unshielded, among as many of SUMO's cars (a crowded road: populate
+    puts no car down beside another): those in the left lane leave the road by its left edge, some
+    of the others side-swipe the cars in the lane beside them."""
     fcd = tmp_path / "fcd.xml"
-    summary = populate(PopulateConfig(policy=steering_policy(tmp_path, 0.3), overtakers=0, keepers=30,
-                                      background=30, duration=8.0, shield=False, fcd=fcd))  # fmt: skip
+    summary = populate(PopulateConfig(policy=steering_policy(tmp_path, 0.3), overtakers=0, keepers=60,
+                                      background=60, duration=8.0, shield=False, fcd=fcd))  # fmt: skip
     table = pd.read_csv(tmp_path / "fcd.agents.csv", dtype={"incident_other": str})
     assert tuple(table.columns) == AGENT_COLUMNS  # one schema, incidents or not
     crashed, left = table[table.end_reason == "collision"], table[table.end_reason == "off_track"]
