@@ -22,10 +22,12 @@ TAGS = ("critic_loss", "actor_loss", "mean_q")
 
 
 def update_scalars(run: Path) -> dict[str, list[tuple[int, float]]]:
-    """(step, value) of each update/ tag, from every event file of the run's tensorboard/ folder."""
+    """(step, value) of each update/ tag, from every event file of the run's tensorboard/ folder, in
+    step order (the reader takes the files in name order, and a writer's file name ends in a counter
+    of the process's writers: after writer 9 of a test session, 10 sorts first)."""
     reader = event_accumulator.EventAccumulator(str(run / "tensorboard"))
     reader.Reload()
-    return {tag: [(e.step, e.value) for e in reader.Scalars(f"update/{tag}")] for tag in TAGS}
+    return {tag: sorted((e.step, e.value) for e in reader.Scalars(f"update/{tag}")) for tag in TAGS}
 
 
 def record_updates(monkeypatch: pytest.MonkeyPatch) -> list[tuple[float, float, float]]:
