@@ -254,13 +254,15 @@ def lane_intent(
     lateral: LaneDriving,
     slow_side_free: np.ndarray | None = None,
     held_up: np.ndarray | None = None,
+    leave: np.ndarray | None = None,
 ) -> np.ndarray:
     """[N] int: the lane each agent heads for, relative to its own (+1 the fast side, -1 the slow
     side, 0 its own), given `changing`, the same at the last step. A change begins only where
     that side's lane exists and its gap is `acceptable` ([N, 2]: fast, slow; `gap_acceptable`);
     until then the wish waits. With the rules of the road (`slow_side_free` [N] bool given), no
     wish means keeping right where that lane is free, a wish for the fast side counts only where
-    `held_up` [N] bool, and a change whose gap stops being acceptable before the car crosses the
+    `held_up` [N] bool, a car whose own lane ends moves to the side `leave` [N] (+1/-1, 0: none)
+    says, and a change whose gap stops being acceptable before the car crosses the
     line is given up (a car came up alongside, or one of the two cars crossing paths). Otherwise a
     change under way goes on whatever the steer: a policy that could call changes off learnt to
     start one and call it off at the next step, riding beside the line.
@@ -275,6 +277,8 @@ def lane_intent(
         may_pass = np.ones(len(wish), bool) if held_up is None else held_up
         wish = np.where(possible & ((wish <= 0) | may_pass), wish, 0)
         wish = np.where((wish == 0) & slow_side_free, -1, wish)
+    if leave is not None:  # the own lane ends: over to the side given (+1/-1), whatever the wish
+        wish = np.where(leave != 0, leave, wish)
     crossed = changing * lane_offset < -lateral.arrived * lane_width
     vanished = np.where(changing > 0, lanes_fast == 0, np.where(changing < 0, lanes_slow == 0, False))
     going = np.where(crossed | vanished, 0, changing)
@@ -410,9 +414,13 @@ def actuate_lanes(
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
     acceptable = gap_acceptable(speed, desired_speed, gap, other_speed, lateral)
+    leave = None
     if lateral.keep_right and lane_leads_on is not None:  # nor into a lane that ends before long
         soon = np.maximum(lateral.ending_lane_m, lateral.ending_lane_s * speed)
         acceptable &= lane_leads_on[:, 1:] >= soon[:, None]
+        ending = lane_leads_on[:, 0] < soon  # and out of the own lane, if it ends, while there is room
+        leave = np.where(ending & (lane_leads_on[:, 1] >= soon), 1, 0)
+        leave = np.where(ending & (leave == 0) & (lane_leads_on[:, 2] >= soon), -1, leave)
     free = slow_side_free(speed, gap, other_speed, lateral, lane_leads_on) if lateral.keep_right else None
     held = held_up(speed, desired_speed, gap, other_speed, lateral) if lateral.keep_right else None
     heading = lane_intent(
@@ -426,6 +434,7 @@ def actuate_lanes(
         lateral,
         free,
         held,
+        leave,
     )
     rows = np.arange(len(steer))
     target_column = np.where(heading > 0, 2, np.where(heading < 0, 4, 0))  # the leader there

@@ -618,7 +618,7 @@ def keeper_on(
 def test_sumo_takes_an_agent_whose_lane_becomes_an_exit_and_hands_it_back(tmp_path):
     """Without the handover SUMO stops the agent dead where lane 0 turns off its route."""
     net = exit_net(tmp_path)
-    with keeper_on(net, ["A", "B"], lane=0, pos=50.0, speed=25.0) as (sim, fleet):
+    with keeper_on(net, ["A", "B"], lane=0, pos=50.0, speed=25.0, rules=False) as (sim, fleet):
         handed_at_some_point, lowest_speed, steps = False, 99.0, 0
         while "agent" in sim.vehicle_ids() and steps < 600:
             fleet.sense(sim, sim.read_vehicles(), True)
@@ -633,10 +633,24 @@ def test_sumo_takes_an_agent_whose_lane_becomes_an_exit_and_hands_it_back(tmp_pa
         assert lowest_speed > 15.0  # never stopped at the end of the exit lane
 
 
+def test_with_the_rules_of_the_road_an_agent_leaves_a_lane_that_ends_by_itself(tmp_path):
+    with keeper_on(exit_net(tmp_path), ["A", "B"], lane=0, pos=50.0, speed=25.0) as (sim, fleet):
+        lanes, lowest_speed = [], 99.0
+        while "agent" in sim.vehicle_ids() and len(lanes) < 600:
+            lanes.append(sim.read_agents(["agent"]).lane_id[0])
+            fleet.sense(sim, sim.read_vehicles(), True)
+            fleet.act(sim, np.array([[0.0, 0.5, 0.0]], np.float32))
+            sim.step()
+            if "agent" in sim.vehicle_ids():
+                lowest_speed = min(lowest_speed, float(sim.read_speeds(["agent"])[0]))
+        assert fleet.handovers == 0 and "A_1" in lanes  # moved over before SUMO had to take it
+        assert "agent" not in sim.vehicle_ids() and lowest_speed > 15.0
+
+
 def test_sumo_chooses_the_speed_of_an_agent_it_took(tmp_path):
     """The agent's last commanded speed must not stick: SUMO drives a handed-over car as its own."""
     net = exit_net(tmp_path)
-    with keeper_on(net, ["A", "B"], lane=0, pos=50.0, speed=12.0) as (sim, fleet):
+    with keeper_on(net, ["A", "B"], lane=0, pos=50.0, speed=12.0, rules=False) as (sim, fleet):
         speeds_while_handed = []
         while "agent" in sim.vehicle_ids() and len(speeds_while_handed) < 50:
             fleet.sense(sim, sim.read_vehicles(), True)
@@ -669,7 +683,7 @@ def test_an_agent_reaching_over_a_lane_that_drops_is_centred_by_sumo_and_stays_o
     """On a 3 -> 2 lane drop a keeper held its centre 1 m towards the ending lane; where the lane
     dropped the road narrowed under it and it was off-track (the losses of the OSM-like nets)."""
     built = build_osm_like("lanedrop", tmp_path)  # m0's lane 0 ends where m1 begins
-    with keeper_on(built.net, ["m0", "m1", "m2"], lane=1, pos=700.0, speed=25.0) as (sim, fleet):
+    with keeper_on(built.net, ["m0", "m1", "m2"], lane=1, pos=700.0, speed=25.0, rules=False) as (sim, fleet):
         handed, off_track, lanes = False, False, set()
         for _ in range(150):  # 30 s: through the drop at 1096 m
             readings = sim.read_agents(["agent"])
@@ -812,7 +826,7 @@ def test_an_agent_given_back_has_its_own_vtype_and_exact_sideways_moves_again(tm
     """While SUMO drives an agent, SUMO's copy of its type (`behave_keeper@agent`) holds the
     handover's lateral limits and FCD shows it; kept after the hand-back, it read as SUMO driving
     in every later row (a loss was blamed on SUMO that way)."""
-    with keeper_on(exit_net(tmp_path), ["A", "B"], lane=0, pos=50.0, speed=25.0) as (sim, fleet):
+    with keeper_on(exit_net(tmp_path), ["A", "B"], lane=0, pos=50.0, speed=25.0, rules=False) as (sim, fleet):
         types_while_handed, back = set(), False
         for _ in range(600):
             fleet.sense(sim, sim.read_vehicles(), True)
