@@ -210,9 +210,24 @@ class LaneDriving:
     min_time_headway: float = 1.1  # s: the policy's accel may not push the car closer behind its leader
     diagonal_headway: float = 0.3  # s: kept behind the fast-side lane's leader not to be passed
     pass_margin: float = 1.0  # m/s: a leader this much slower than the car wants is a reason to pass
-    no_undertaking_above: float = (
-        60 / 3.6
-    )  # m/s: above this the fast-side leader is not passed on its slow side
+    # m/s: above this the fast-side leader is not passed on its slow side
+    no_undertaking_above: float = 60 / 3.6
+
+
+def new_follower_accel(
+    speed: np.ndarray, follower_gap: np.ndarray, follower_speed: np.ndarray, law: CarFollowing
+) -> np.ndarray:
+    """[N] the acceleration the car behind in a neighbour lane would need were the car to move in
+    front of it (0 where nobody is behind), by the same car-following law at its own speed."""
+    behind = np.nan_to_num(follower_speed)
+    braking = following_accel(behind, behind, follower_gap, speed, law)
+    return np.where(np.isfinite(follower_gap), braking, 0.0)
+
+
+def look_ahead(speed: np.ndarray, lateral: LaneDriving) -> np.ndarray:
+    """[N] metres within which a leader counts for the rules of the road: max(`free_ahead`,
+    `free_ahead_s` at speed)."""
+    return np.maximum(lateral.free_ahead, lateral.free_ahead_s * speed)
 
 
 def gap_acceptable(
@@ -232,10 +247,7 @@ def gap_acceptable(
     law, out = lateral.following, np.zeros((len(speed), 2), bool)
     for side, (lead, follow) in enumerate(((2, 3), (4, 5))):
         own = following_accel(speed, desired_speed, gap[:, lead], other_speed[:, lead], law)
-        behind = np.nan_to_num(other_speed[:, follow])
-        theirs = np.where(
-            np.isfinite(gap[:, follow]), following_accel(behind, behind, gap[:, follow], speed, law), 0.0
-        )
+        theirs = new_follower_accel(speed, gap[:, follow], other_speed[:, follow], law)
         out[:, side] = (gap[:, lead] > 0) & (gap[:, follow] > 0) & (own >= -lateral.safe_decel)
         out[:, side] &= theirs >= -lateral.safe_decel
         closing = np.maximum(np.nan_to_num(other_speed[:, follow]) - speed, 0.0)
@@ -297,18 +309,14 @@ def slow_side_free(
     lateral: LaneDriving,
     lane_leads_on: np.ndarray | None = None,
 ) -> np.ndarray:
-    """[N] bool: nobody in the slow-side lane for max(`free_ahead` m, `free_ahead_s` at speed) ahead,
+    """[N] bool: nobody in the slow-side lane within `look_ahead`,
     nobody behind there who would have to brake for the car moving in (`polite_decel`): keeping
     right is no reason to cut in; and that lane leads on along the route as far as the own one does
     and at least `keep_right_reach` (an exit, a lane drop or an acceleration lane is not kept to).
     `gap`/`other_speed` [N, 6] as in `gap_acceptable` (gap 0 = no lane or alongside);
     `lane_leads_on` [N, 3] metres (own, fast side, slow side), None: every lane leads on."""
-    behind = np.nan_to_num(other_speed[:, 5])
-    theirs = np.where(
-        np.isfinite(gap[:, 5]), following_accel(behind, behind, gap[:, 5], speed, lateral.following), 0.0
-    )
-    ahead_free = gap[:, 4] > np.maximum(lateral.free_ahead, lateral.free_ahead_s * speed)
-    free = ahead_free & (gap[:, 5] > 0) & (theirs >= -lateral.polite_decel)
+    theirs = new_follower_accel(speed, gap[:, 5], other_speed[:, 5], lateral.following)
+    free = (gap[:, 4] > look_ahead(speed, lateral)) & (gap[:, 5] > 0) & (theirs >= -lateral.polite_decel)
     if lane_leads_on is not None:
         slow = lane_leads_on[:, 2]
         free &= (slow >= lane_leads_on[:, 0]) & (slow >= lateral.keep_right_reach)
@@ -322,9 +330,9 @@ def held_up(
     other_speed: np.ndarray,
     lateral: LaneDriving,
 ) -> np.ndarray:
-    """[N] bool: a leader within max(`free_ahead` m, `free_ahead_s` at speed) drives slower than the car
-    wants by more than `pass_margin`: the reason to move to the fast side."""
-    near = np.isfinite(gap[:, 0]) & (gap[:, 0] < np.maximum(lateral.free_ahead, lateral.free_ahead_s * speed))
+    """[N] bool: a leader within `look_ahead` drives slower than the car wants by more than
+    `pass_margin`: the reason to move to the fast side."""
+    near = np.isfinite(gap[:, 0]) & (gap[:, 0] < look_ahead(speed, lateral))
     return near & (np.nan_to_num(other_speed[:, 0], nan=np.inf) < desired_speed - lateral.pass_margin)
 
 

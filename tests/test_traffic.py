@@ -615,6 +615,20 @@ def keeper_on(
         yield sim, fleet
 
 
+def drive_on(sim: SumoSim, fleet: Fleet, steps: int = 600) -> tuple[list[str], float]:
+    """Drive the keeper with steer 0 and the law's speed until it leaves (or `steps`): the lanes it
+    was in, step by step, and its lowest speed."""
+    lanes, lowest_speed = [], 99.0
+    while "agent" in sim.vehicle_ids() and len(lanes) < steps:
+        lanes.append(sim.read_agents(["agent"]).lane_id[0])
+        fleet.sense(sim, sim.read_vehicles(), True)
+        fleet.act(sim, np.array([[0.0, 0.5, 0.0]], np.float32))
+        sim.step()
+        if "agent" in sim.vehicle_ids():
+            lowest_speed = min(lowest_speed, float(sim.read_speeds(["agent"])[0]))
+    return lanes, lowest_speed
+
+
 def test_sumo_takes_an_agent_whose_lane_becomes_an_exit_and_hands_it_back(tmp_path):
     """Without the handover SUMO stops the agent dead where lane 0 turns off its route."""
     net = exit_net(tmp_path)
@@ -635,14 +649,7 @@ def test_sumo_takes_an_agent_whose_lane_becomes_an_exit_and_hands_it_back(tmp_pa
 
 def test_with_the_rules_of_the_road_an_agent_leaves_a_lane_that_ends_by_itself(tmp_path):
     with keeper_on(exit_net(tmp_path), ["A", "B"], lane=0, pos=50.0, speed=25.0) as (sim, fleet):
-        lanes, lowest_speed = [], 99.0
-        while "agent" in sim.vehicle_ids() and len(lanes) < 600:
-            lanes.append(sim.read_agents(["agent"]).lane_id[0])
-            fleet.sense(sim, sim.read_vehicles(), True)
-            fleet.act(sim, np.array([[0.0, 0.5, 0.0]], np.float32))
-            sim.step()
-            if "agent" in sim.vehicle_ids():
-                lowest_speed = min(lowest_speed, float(sim.read_speeds(["agent"])[0]))
+        lanes, lowest_speed = drive_on(sim, fleet)
         assert fleet.handovers == 0 and "A_1" in lanes  # moved over before SUMO had to take it
         assert "agent" not in sim.vehicle_ids() and lowest_speed > 15.0
 
@@ -772,14 +779,7 @@ def test_an_agent_in_the_fast_lane_is_handed_over_on_a_long_edge_well_before_its
         assert any(lane.startswith(built.exit_edge) for lane in lanes)
         assert lowest_speed > 15.0
     with keeper_on(built.net, route, lane=1, pos=100.0, speed=30.0) as (sim, fleet):  # keeping right
-        lanes, lowest_speed = [], 99.0
-        while "agent" in sim.vehicle_ids() and len(lanes) < 600:
-            lanes.append(sim.read_agents(["agent"]).lane_id[0])
-            fleet.sense(sim, sim.read_vehicles(), True)
-            fleet.act(sim, np.array([[0.0, 0.5, 0.0]], np.float32))
-            sim.step()
-            if "agent" in sim.vehicle_ids():
-                lowest_speed = min(lowest_speed, float(sim.read_speeds(["agent"])[0]))
+        lanes, lowest_speed = drive_on(sim, fleet)
         assert "m0_0" in lanes and any(lane.startswith(built.exit_edge) for lane in lanes)
         assert lowest_speed > 15.0
 
