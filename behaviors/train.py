@@ -25,9 +25,9 @@ import signal
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
@@ -44,7 +44,7 @@ from behaviors.ddpg.learner import (
 from behaviors.ddpg.replay_files import ReplayFiles
 from behaviors.distributed import RayWorkers, WorkerSetup, ray_workers
 from behaviors.drivers import make_driver
-from behaviors.env import BEHAVIOURS, EnvConfig, StepBatch, create_env
+from behaviors.env import EnvConfig, StepBatch, create_env
 from behaviors.episode import drive_episode
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path, atomic_write_bytes, atomic_write_text, ensure_writable_dir
@@ -56,52 +56,38 @@ UPDATE_LOG_EVERY = 10
 """TensorBoard's per-update scalars are the means of blocks of this many updates: writing every
 update's three scalars took 0.4-0.7 ms against 11 ms per update here, 2% of a short run's wall time
 and 4% of its update time; blocks of 10 take 0.4% and 0.7%."""
-_LEARNER = DDPGConfig()
-_ENV = EnvConfig()
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """A training run; saved as config.json and checked again on --resume."""
+    """A training run: its episodes (`env`, whose seed is the run's), its learner (`ddpg`) and the run's
+    own settings; saved as config.json and read back on --resume."""
 
-    # episode settings: the defaults are EnvConfig's, named alike (see env_config)
-    behaviour: str = _ENV.behaviour
+    env: EnvConfig = field(default_factory=lambda: EnvConfig(seed=0))
+    ddpg: DDPGConfig = field(default_factory=DDPGConfig)
     algo: str = "ps-ddpg"
-    scenario: str = str(_ENV.scenario)
-    agents: int = _ENV.agents
-    overtakers: int = _ENV.overtakers
-    keepers: int = _ENV.keepers
-    placement: str = _ENV.placement
-    opponents: int | None = _ENV.opponents
     episodes: int = 100
-    max_steps: int = _ENV.max_steps
-    step_length: float = _ENV.step_length
-    seed: int = 0
     updates_per_step: int | None = None  # None: one per live agent (the paper)
-    lane_weight: float = _ENV.lane_weight
-    driver: str = _ENV.driver
-    # learner settings: the defaults are DDPGConfig's, named alike (one source of truth)
-    hidden: tuple[int, ...] = _LEARNER.hidden
-    batch_size: int = _LEARNER.batch_size
-    gamma: float = _LEARNER.gamma
-    tau: float = _LEARNER.tau
-    actor_lr: float = _LEARNER.actor_lr
-    critic_lr: float = _LEARNER.critic_lr
-    buffer_size: int = _LEARNER.buffer_size
-    warmup: int = _LEARNER.warmup
-    explore_decay_steps: int = _LEARNER.explore_decay_steps
-    batched_updates: bool = _LEARNER.batched
     reward_scale: float | None = None  # for the critic (logged raw); None: the driver's reward_scale
     checkpoint_every: int = 10
     init: str | None = None  # checkpoint to start from (curriculum: overtaking from lane keeping)
     max_minutes: float | None = None  # wall-clock budget: stop after the episode that exceeds it
     workers: int = 1  # more: rollout workers on Ray (distributed.py), one learner (DistributedTrainer)
 
+    @property
+    def seed(self) -> int:
+        """Seeds the networks, the replay buffer, the noise and every episode."""
+        assert self.env.seed is not None, "validate() refuses a run without a seed"
+        return self.env.seed
+
     def validate(self) -> None:
         if self.algo not in ALGORITHMS:
             raise BehaveError(f"unknown algorithm '{self.algo}' (choose from {', '.join(ALGORITHMS)})")
-        if self.behaviour not in BEHAVIOURS:
-            raise BehaveError(f"unknown behaviour '{self.behaviour}' (choose from {', '.join(BEHAVIOURS)})")
+        if not isinstance(self.env.scenario, str):
+            raise BehaveError("a training run names its scenario (config.json holds the name)")
+        if self.env.seed is None:
+            raise BehaveError("a training run needs a seed")
         if self.episodes < 1:
             raise BehaveError(f"episodes must be positive, got {self.episodes}")
         if self.updates_per_step is not None and self.updates_per_step < 0:
@@ -110,50 +96,88 @@ class TrainConfig:
             raise BehaveError(f"workers must be positive, got {self.workers}")
         if self.workers > 1 and self.algo == "multi-ddpg":
             raise BehaveError("--workers trains ps-ddpg or ddpg (multi-ddpg has a learner per agent)")
-        if not self.hidden or min(self.hidden) < 1:
-            raise BehaveError(f"network sizes must be positive, got {self.hidden}")
+        if not self.ddpg.hidden or min(self.ddpg.hidden) < 1:
+            raise BehaveError(f"network sizes must be positive, got {self.ddpg.hidden}")
         self.env_config().validate()
 
     def env_config(self) -> EnvConfig:
-        single = self.algo == "ddpg"
-        return EnvConfig(
-            scenario=self.scenario,
-            behaviour=self.behaviour,
-            agents=1 if single and self.behaviour != "multi" else self.agents,
-            overtakers=self.overtakers,
-            keepers=self.keepers,
-            placement=self.placement,
-            opponents=self.opponents,
-            max_steps=self.max_steps,
-            step_length=self.step_length,
-            seed=self.seed,
-            lane_weight=self.lane_weight,
-            driver=self.driver,
-        )
+        """The episodes as driven: the single-agent baseline (ddpg) drives one agent."""
+        single = self.algo == "ddpg" and self.env.behaviour != "multi"
+        return replace(self.env, agents=1) if single else self.env
 
     @property
     def critic_reward_scale(self) -> float:
-        return make_driver(self.driver).reward_scale if self.reward_scale is None else self.reward_scale
+        return make_driver(self.env.driver).reward_scale if self.reward_scale is None else self.reward_scale
 
     def ddpg_config(self) -> DDPGConfig:
-        shared = {
-            f.name: getattr(self, f.name) for f in dataclasses.fields(DDPGConfig) if hasattr(self, f.name)
-        }
-        shared["hidden"] = tuple(self.hidden)  # JSON round trips turn it into a list
-        exploration: dict[str, Any] = make_driver(self.driver).exploration
-        return dataclasses.replace(_LEARNER, **shared, **exploration, batched=self.batched_updates)
+        """The learner as run: the driver's exploration noise over `ddpg`'s."""
+        exploration: dict[str, Any] = make_driver(self.env.driver).exploration
+        return replace(self.ddpg, **exploration)
+
+    def options(self) -> dict[str, Any]:
+        """The settings `behave train` takes, by option name (OPTIONS)."""
+        return {name: getattr(self._part(part), attr) for name, (part, attr) in OPTIONS.items()}
+
+    @classmethod
+    def from_options(cls, **options: Any) -> TrainConfig:
+        """A run from `behave train`'s options (OPTIONS; the others keep their defaults)."""
+        unknown = set(options) - set(OPTIONS)
+        if unknown:
+            raise BehaveError(f"unknown training settings: {', '.join(sorted(unknown))}")
+        parts: dict[str, dict[str, Any]] = {"env": {}, "ddpg": {}, "": {}}
+        for name, value in options.items():
+            part, attr = OPTIONS[name]
+            parts[part][attr] = tuple(value) if isinstance(value, list) else value
+        base = cls()
+        return replace(
+            base, env=replace(base.env, **parts["env"]), ddpg=replace(base.ddpg, **parts["ddpg"]), **parts[""]
+        )
+
+    def _part(self, part: str) -> Any:
+        return getattr(self, part) if part else self
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str) -> TrainConfig:
+        """config.json as written now (nested), or as older runs wrote it (flat: `behave train`'s options)."""
         data = json.loads(text)
-        unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
-        if unknown:
-            raise BehaveError(f"config.json has unknown keys: {', '.join(sorted(unknown))}")
-        data["hidden"] = tuple(data["hidden"])
-        return cls(**data)
+        if "env" not in data:
+            return cls.from_options(**data)
+        return dataclass_from_dict(cls, data, "config.json")
+
+
+ENV_OPTIONS = ("behaviour", "scenario", "agents", "overtakers", "keepers", "placement", "opponents",
+               "max_steps", "step_length", "seed", "lane_weight", "driver")  # fmt: skip
+DDPG_OPTIONS = ("hidden", "batch_size", "gamma", "tau", "actor_lr", "critic_lr", "buffer_size", "warmup",
+                "explore_decay_steps")  # fmt: skip
+RUN_OPTIONS = ("algo", "episodes", "updates_per_step", "reward_scale", "checkpoint_every", "init",
+               "max_minutes", "workers")  # fmt: skip
+OPTIONS: dict[str, tuple[str, str]] = {
+    **{name: ("env", name) for name in ENV_OPTIONS},
+    **{name: ("ddpg", name) for name in DDPG_OPTIONS},
+    "batched_updates": ("ddpg", "batched"),
+    **{name: ("", name) for name in RUN_OPTIONS},
+}
+"""`behave train`'s options (the keys of a flat config.json): the (part of TrainConfig, field) each sets."""
+
+
+def dataclass_from_dict(cls: type[T], data: dict[str, Any], where: str) -> T:
+    """A (frozen, nested) config from its `asdict` form: JSON's lists back to tuples, nested configs
+    rebuilt by their field's default; unknown keys named."""
+    known = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    unknown = set(data) - set(known)
+    if unknown:
+        raise BehaveError(f"{where} has unknown keys: {', '.join(sorted(unknown))}")
+    values: dict[str, Any] = {}
+    for name, value in data.items():
+        f = known[name]
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+        if isinstance(value, dict) and dataclasses.is_dataclass(default):
+            value = dataclass_from_dict(type(default), value, f"{where} {name}")
+        values[name] = tuple(value) if isinstance(value, list) else value
+    return cls(**values)
 
 
 def episode_row(
@@ -206,22 +230,22 @@ class Trainer:
     # --- policy I/O -------------------------------------------------------------------
     def meta(self) -> dict[str, Any]:
         """What a checkpoint records: its driver names the observation, the policy loader reads it."""
-        c = self.config
-        driver, with_id = make_driver(c.driver), self.env.config.with_id
-        behaviours = ["overtaking", "lanekeeping"] if c.behaviour == "multi" else [c.behaviour]
+        c, env = self.config, self.env.config
+        driver = make_driver(env.driver)
+        behaviours = ["overtaking", "lanekeeping"] if env.behaviour == "multi" else [env.behaviour]
         return {
             "algorithm": c.algo,
             "driver": driver.name,
-            "behaviour": c.behaviour,
+            "behaviour": env.behaviour,
             "behaviours": behaviours,
             "obs_dim": self.obs_dim,
-            "observation_layout": driver.observation_layout(with_id),
+            "observation_layout": driver.observation_layout(env.with_id),
             "normalisation": driver.normalisation,
-            "hidden": list(c.hidden),
+            "hidden": list(c.ddpg.hidden),
             "training_steps": self.transitions,
             "episodes": self.episode,
             "seed": c.seed,
-            "step_length": c.step_length,
+            "step_length": env.step_length,
         }
 
     @property
@@ -242,7 +266,7 @@ class Trainer:
         """
         ckpt = load_checkpoint(path)
         if ckpt.meta["obs_dim"] not in (self.obs_dim, self.obs_dim - 1):
-            load_checkpoint(path, expect_obs_dim=self.obs_dim, expect_layout=self.config.behaviour)
+            load_checkpoint(path, expect_obs_dim=self.obs_dim, expect_layout=self.env.config.behaviour)
         actor = widen_inputs(ckpt.actor_state, self.obs_dim, obs_first=True)
         critic = ckpt.critic_state and widen_inputs(ckpt.critic_state, self.obs_dim, obs_first=False)
         try:
@@ -253,7 +277,7 @@ class Trainer:
                     lr.critic.load_state_dict(critic)
                     lr.critic_target.load_state_dict(critic)
         except RuntimeError:
-            sizes = f"{ckpt.meta['hidden']} vs this run's {list(self.config.hidden)}"
+            sizes = f"{ckpt.meta['hidden']} vs this run's {list(self.config.ddpg.hidden)}"
             raise BehaveError(f"{path}: network sizes differ ({sizes})") from None
 
     # --- resume -----------------------------------------------------------------------

@@ -44,7 +44,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
 
-    config = TrainConfig(
+    config = TrainConfig.from_options(
         behaviour=args.behaviour, algo=args.algo, agents=args.agents, overtakers=args.overtakers,
         keepers=args.keepers, init=args.init, episodes=args.episodes, max_minutes=args.minutes,
         seed=args.seed, checkpoint_every=args.checkpoint_every, workers=args.workers,

@@ -111,15 +111,22 @@ def worker(config_json: str, out: Path, budget_min: float | None) -> None:
 
 def behave_command(config: TrainConfig, out: Path, budget_min: float | None) -> str:
     """The equivalent `behave train` command line (for the docs)."""
-    c = config
-    args = ["behave", "train", c.behaviour, "--algo", c.algo, "--scenario", c.scenario]
-    if c.behaviour == "multi":
-        args += ["--overtakers", str(c.overtakers), "--keepers", str(c.keepers), "--placement", c.placement]
+    c, env = config, config.env
+    args = ["behave", "train", env.behaviour, "--algo", c.algo, "--scenario", str(env.scenario)]
+    if env.behaviour == "multi":
+        args += [
+            "--overtakers",
+            str(env.overtakers),
+            "--keepers",
+            str(env.keepers),
+            "--placement",
+            env.placement,
+        ]
     else:
-        args += ["--agents", str(c.agents)]
-    if c.opponents is not None:
-        args += ["--opponents", str(c.opponents)]
-    args += ["--episodes", str(c.episodes), "--max-steps", str(c.max_steps), "--seed", str(c.seed)]
+        args += ["--agents", str(env.agents)]
+    if env.opponents is not None:
+        args += ["--opponents", str(env.opponents)]
+    args += ["--episodes", str(c.episodes), "--max-steps", str(env.max_steps), "--seed", str(env.seed)]
     args += ["--checkpoint-every", str(c.checkpoint_every), "--out", str(out)]
     if c.init:
         args += ["--init", c.init]
@@ -351,17 +358,23 @@ def run_paper(args: argparse.Namespace) -> None:
 
     e_lk, e_ot, e_mb = scaled(args.lk_episodes), scaled(args.ot_episodes), scaled(args.multi_episodes)
     cmp_min = args.compare_minutes * args.scale
-    base = TrainConfig(scenario=scen, max_steps=steps, seed=seed)
+    base: dict[str, Any] = dict(scenario=scen, max_steps=steps, seed=seed)  # behave train's options
     lk_final = runs / "lanekeeping" / "checkpoints" / "final.pt"
     cmp_cfg = dict(agents=6, episodes=1_000_000, checkpoint_every=args.converge_every, max_minutes=cmp_min)
     algos = {"PS-DDPG": "ps-ddpg", "DDPG": "ddpg", "multi-DDPG": "multi-ddpg"}
     jobs = [
-        Job("lanekeeping", dataclasses.replace(base, agents=6, episodes=e_lk, checkpoint_every=e_lk // 2)),
-        *(Job(f"compare-{a}", dataclasses.replace(base, algo=a, **cmp_cfg), cmp_min) for a in algos.values()),
+        Job(
+            "lanekeeping",
+            TrainConfig.from_options(**base, agents=6, episodes=e_lk, checkpoint_every=e_lk // 2),
+        ),
+        *(
+            Job(f"compare-{a}", TrainConfig.from_options(**base, algo=a, **cmp_cfg), cmp_min)
+            for a in algos.values()
+        ),
         Job(
             "overtaking",
-            dataclasses.replace(
-                base,
+            TrainConfig.from_options(
+                **base,
                 behaviour="overtaking",
                 agents=4,
                 opponents=4,
@@ -373,8 +386,8 @@ def run_paper(args: argparse.Namespace) -> None:
         ),
         Job(
             "multi",
-            dataclasses.replace(
-                base,
+            TrainConfig.from_options(
+                **base,
                 behaviour="multi",
                 overtakers=4,
                 keepers=4,

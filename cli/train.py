@@ -11,14 +11,20 @@ from typing import Annotated
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED
+from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED, number
 
 DEFAULTS = SimpleNamespace(
-    algo="ps-ddpg", agents=6, episodes=100, max_steps=1000, step_length=0.2, seed=0, scenario="ring",
-    batch_size=64, reward_scale=None, driver="paper", explore_decay_steps=100_000, lane_weight=0.0,
-    workers=1,
+    behaviour="lanekeeping", scenario="ring", agents=6, overtakers=0, keepers=0, placement="C",
+    opponents=None, max_steps=1000, step_length=0.2, seed=0, lane_weight=0.0, driver="paper",
+    hidden=(256, 256), batch_size=64, gamma=0.99, tau=0.001, actor_lr=1e-4, critic_lr=1e-3,
+    buffer_size=100_000, warmup=1000, explore_decay_steps=100_000, batched_updates=False,
+    algo="ps-ddpg", episodes=100, updates_per_step=None, reward_scale=None, checkpoint_every=10, init=None,
+    max_minutes=None, workers=1,
 )  # fmt: skip
-"""TrainConfig's defaults, spelled out so that `--help` needs no torch (a test keeps them equal)."""
+"""Every setting of a run by option name (train.OPTIONS) with TrainConfig's default, spelled out so
+that `--help` needs no torch; a test keeps them TrainConfig().options()."""
+UNIT = number(high=1.0)
+FRACTION = number(strict=True, high=1.0)
 
 
 def train(
@@ -29,15 +35,19 @@ def train(
     agents: Annotated[
         int, typer.Option(help="learning agents (lanekeeping/overtaking)", callback=POSITIVE)
     ] = DEFAULTS.agents,
-    overtakers: Annotated[int, typer.Option(help="overtakers (multi)", callback=NON_NEGATIVE)] = 0,
-    keepers: Annotated[int, typer.Option(help="lane keepers (multi)", callback=NON_NEGATIVE)] = 0,
+    overtakers: Annotated[
+        int, typer.Option(help="overtakers (multi)", callback=NON_NEGATIVE)
+    ] = DEFAULTS.overtakers,
+    keepers: Annotated[
+        int, typer.Option(help="lane keepers (multi)", callback=NON_NEGATIVE)
+    ] = DEFAULTS.keepers,
     placement: Annotated[
         str, typer.Option(help="multi start: A overtakers ahead, B keepers ahead, C mixed")
-    ] = "C",
+    ] = DEFAULTS.placement,
     opponents: Annotated[
         int | None,
         typer.Option(help="slower passive cars ahead (overtaking; multi: default 0)", callback=NON_NEGATIVE),
-    ] = None,
+    ] = DEFAULTS.opponents,
     episodes: Annotated[
         int | None,
         typer.Option(
@@ -62,17 +72,39 @@ def train(
     out: Annotated[
         Path | None, typer.Option(help="run directory (default runs/BEHAVIOUR-ALGO-sSEED)")
     ] = None,
-    init: Annotated[Path | None, typer.Option(help="start from this checkpoint (curriculum)")] = None,
+    init: Annotated[
+        Path | None, typer.Option(help="start from this checkpoint (curriculum)")
+    ] = DEFAULTS.init,
     resume: Annotated[Path | None, typer.Option(help="continue the run in this directory")] = None,
     updates_per_step: Annotated[
         int | None,
         typer.Option(help="network updates per step (default: one per live agent)", callback=POSITIVE),
-    ] = None,
-    batched_updates: Annotated[bool, typer.Option(help="do a step's updates as one big batch")] = False,
-    hidden: Annotated[str, typer.Option(help="hidden layer sizes, e.g. 256,256")] = "256,256",
+    ] = DEFAULTS.updates_per_step,
+    batched_updates: Annotated[
+        bool, typer.Option(help="do a step's updates as one big batch")
+    ] = DEFAULTS.batched_updates,
+    hidden: Annotated[str, typer.Option(help="hidden layer sizes, e.g. 256,256")] = ",".join(
+        map(str, DEFAULTS.hidden)
+    ),
     batch_size: Annotated[
         int, typer.Option(help="replay minibatch size", callback=POSITIVE)
     ] = DEFAULTS.batch_size,
+    gamma: Annotated[float, typer.Option(help="discount factor", callback=UNIT)] = DEFAULTS.gamma,
+    tau: Annotated[
+        float, typer.Option(help="target networks' soft-update rate", callback=FRACTION)
+    ] = DEFAULTS.tau,
+    actor_lr: Annotated[
+        float, typer.Option(help="actor learning rate", callback=POSITIVE)
+    ] = DEFAULTS.actor_lr,
+    critic_lr: Annotated[
+        float, typer.Option(help="critic learning rate", callback=POSITIVE)
+    ] = DEFAULTS.critic_lr,
+    buffer_size: Annotated[
+        int, typer.Option(help="replay buffer size (transitions)", callback=POSITIVE)
+    ] = DEFAULTS.buffer_size,
+    warmup: Annotated[
+        int, typer.Option(help="transitions stored before the first update", callback=NON_NEGATIVE)
+    ] = DEFAULTS.warmup,
     reward_scale: Annotated[
         float | None,
         typer.Option(
@@ -92,10 +124,10 @@ def train(
     ] = DEFAULTS.lane_weight,
     checkpoint_every: Annotated[
         int, typer.Option(help="episodes between numbered checkpoints", callback=POSITIVE)
-    ] = 10,
+    ] = DEFAULTS.checkpoint_every,
     max_minutes: Annotated[
         float | None, typer.Option(help="wall-clock budget; stops after that episode", callback=NON_NEGATIVE)
-    ] = None,
+    ] = DEFAULTS.max_minutes,
     workers: Annotated[
         int, typer.Option(help="rollout workers (over 1: on Ray, each with its own SUMO)", callback=POSITIVE)
     ] = DEFAULTS.workers,
@@ -104,18 +136,15 @@ def train(
     ] = None,
 ) -> None:
     """Train a behaviour; Ctrl-C or SIGTERM stops it (exit 130 or 143), resumable with --resume."""
+    given = dict(locals())  # the options as typer parsed them, by name
     from behaviors.train import TrainConfig, prepare_run  # torch: only when training
 
-    config = TrainConfig(
-        behaviour=behaviour, algo=algo, agents=agents, overtakers=overtakers, keepers=keepers,
-        placement=placement, opponents=opponents, max_steps=max_steps,
-        episodes=DEFAULTS.episodes if episodes is None else episodes,
-        step_length=step_length, seed=seed, scenario=scenario, init=str(init) if init else None,
-        updates_per_step=updates_per_step, batched_updates=batched_updates, hidden=parse_sizes(hidden),
-        batch_size=batch_size, reward_scale=reward_scale, explore_decay_steps=explore_decay_steps,
-        checkpoint_every=checkpoint_every, max_minutes=max_minutes, lane_weight=lane_weight, driver=driver,
-        workers=workers,
-    )  # fmt: skip
+    config = TrainConfig.from_options(**{
+        **{name: given[name] for name in vars(DEFAULTS)},
+        "episodes": DEFAULTS.episodes if episodes is None else episodes,
+        "hidden": parse_sizes(hidden),
+        "init": str(init) if init else None,
+    })  # fmt: skip
     run_dir = resume or out or Path("runs") / f"{behaviour}-{algo}-s{seed}"
     trainer = prepare_run(
         config, run_dir, resume=resume is not None, episodes=episodes, ray_address=ray_address
@@ -143,7 +172,7 @@ def train(
             trainer.run(show)
         except KeyboardInterrupt:  # a second Ctrl-C: the last finished episode's state is saved
             trainer.stop_signal = signal.SIGINT
-    resume_with = f"continue with: behave train {trainer.config.behaviour} --resume {run_dir}"
+    resume_with = f"continue with: behave train {trainer.config.env.behaviour} --resume {run_dir}"
     done = f"{trainer.episode} of {total} episodes in {run_dir}"
     if trainer.stop_signal is not None:
         name = signal.Signals(trainer.stop_signal).name

@@ -32,7 +32,7 @@ def test_two_workers_train_checkpoint_and_resume_on_tiny(tmp_path: Path) -> None
     """Two workers (two SUMOs: one process could not hold both) feed one learner: its buffer holds
     every agent step of both workers' episodes, it updates, and --resume continues the run."""
     run = tmp_path / "run"
-    config = TrainConfig(**SMALL, episodes=3, workers=2)
+    config = TrainConfig.from_options(**SMALL, episodes=3, workers=2)
     prepare_run(config, run, resume=False).run()
     prepare_run(config, run, resume=True, episodes=4).run()
     metrics = pd.read_csv(run / "metrics.csv")

@@ -72,7 +72,7 @@ import sys, time
 from pathlib import Path
 from behaviors.train import TrainConfig, prepare_run
 out, target, config = Path(sys.argv[1]), int(sys.argv[2]), eval(sys.argv[3])
-trainer = prepare_run(TrainConfig(**config), out, resume=False)
+trainer = prepare_run(TrainConfig.from_options(**config), out, resume=False)
 step = trainer.env.step_arrays
 def blocking_step(actions):
     batch = step(actions)
@@ -95,7 +95,7 @@ def final_actor(run: Path) -> dict:
 def uninterrupted(tmp_path_factory):
     """Rows and final policy of a run that nothing stopped."""
     out = tmp_path_factory.mktemp("whole") / "run"
-    rows = prepare_run(TrainConfig(**CONFIG, episodes=TOTAL), out, resume=False).run()
+    rows = prepare_run(TrainConfig.from_options(**CONFIG, episodes=TOTAL), out, resume=False).run()
     return rows, final_actor(out)
 
 
@@ -208,7 +208,7 @@ class RunsCode:
 
 def test_resume_reads_the_state_as_data_and_never_runs_code_in_it(tmp_path):
     out, marker = tmp_path / "run", tmp_path / "code-ran"
-    prepare_run(TrainConfig(**CONFIG, episodes=1), out, resume=False)
+    prepare_run(TrainConfig.from_options(**CONFIG, episodes=1), out, resume=False)
     torch.save({"version": 2, "learner": RunsCode(marker)}, out / "state.pt")
     with pytest.raises(BehaveError, match="corrupt or truncated"):
         prepare_run(TrainConfig(), out, resume=True)

@@ -46,10 +46,22 @@ def test_cli_defaults_are_the_configs() -> None:
     from behaviors.populate import DEFAULT_POLICY, PopulateConfig
     from behaviors.train import TrainConfig
 
-    for defaults, config in ((train.DEFAULTS, TrainConfig()), (populate.DEFAULTS, PopulateConfig())):
-        assert vars(defaults) == {name: getattr(config, name) for name in vars(defaults)}
+    assert vars(train.DEFAULTS) == TrainConfig().options()  # every setting of a run, by option name
+    defaults = vars(populate.DEFAULTS)
+    assert defaults == {name: getattr(PopulateConfig(), name) for name in defaults}
     assert populate.DEFAULT_POLICY == DEFAULT_POLICY
     assert (report.GROUP_BY, report.SKIP_S) == (realism.GROUP_BY, realism.SKIP_S)
+
+
+def test_behave_train_takes_every_setting_of_a_run() -> None:
+    """Its options are TrainConfig's (train.OPTIONS), no more and no fewer: none can drift apart."""
+    import inspect
+
+    from behaviors.cli import train
+    from behaviors.train import OPTIONS
+
+    command_only = {"out", "resume", "ray_address"}
+    assert set(inspect.signature(train.train).parameters) - command_only == set(OPTIONS)
 
 
 def test_wheel_installs_the_cli_under_behaviors(tmp_path: Path) -> None:

@@ -26,8 +26,8 @@ def scalars(run: Path) -> dict[str, list[tuple[int, float]]]:
 
 def test_episodes_are_logged_once_each_with_every_numeric_column_and_resume_appends(tmp_path: Path) -> None:
     run = tmp_path / "run"
-    prepare_run(TrainConfig(**TINY, episodes=2), run, resume=False).run()
-    prepare_run(TrainConfig(**TINY, episodes=3), run, resume=True, episodes=3).run()
+    prepare_run(TrainConfig.from_options(**TINY, episodes=2), run, resume=False).run()
+    prepare_run(TrainConfig.from_options(**TINY, episodes=3), run, resume=True, episodes=3).run()
     metrics = pd.read_csv(run / "metrics.csv")
     logged = scalars(run)
     numeric = set(metrics.select_dtypes("number").columns)

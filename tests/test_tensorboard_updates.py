@@ -51,9 +51,9 @@ def test_update_blocks_are_the_means_of_the_learners_steps_once_each_across_resu
     mean of those updates' losses and Q; a resume continues the numbering with no step twice."""
     seen = record_updates(monkeypatch)
     run = tmp_path / "run"
-    prepare_run(TrainConfig(**TINY, episodes=2), run, resume=False).run()
+    prepare_run(TrainConfig.from_options(**TINY, episodes=2), run, resume=False).run()
     first_run = len(seen)
-    prepare_run(TrainConfig(**TINY, episodes=3), run, resume=True, episodes=3).run()
+    prepare_run(TrainConfig.from_options(**TINY, episodes=3), run, resume=True, episodes=3).run()
     total = torch.load(run / "state.pt", weights_only=True)["learner"]["updates"]
     assert total == len(seen) > first_run > 2 * UPDATE_LOG_EVERY  # both parts updated
     logged = update_scalars(run)
@@ -74,7 +74,7 @@ def test_ray_workers_log_update_blocks_too(tmp_path: Path) -> None:
     """Two rollout workers on Ray (DistributedTrainer): the learner's blocks land the same way."""
     pytest.importorskip("ray", reason="ray is not installed (the distributed extra)")
     run = tmp_path / "run"
-    trainer = prepare_run(TrainConfig(**TINY, episodes=3, workers=2), run, resume=False)
+    trainer = prepare_run(TrainConfig.from_options(**TINY, episodes=3, workers=2), run, resume=False)
     assert type(trainer).__name__ == "DistributedTrainer"
     trainer.run()
     total = torch.load(run / "state.pt", weights_only=True)["learner"]["updates"]

@@ -20,7 +20,7 @@ TINY = {"scenario": "tiny", "agents": 2, "max_steps": 40, "warmup": 32, "batch_s
 
 
 def train(out: Path, resume: bool = False, **overrides) -> list[dict]:
-    config = TrainConfig(**{**TINY, **overrides})
+    config = TrainConfig.from_options(**{**TINY, **overrides})
     trainer = prepare_run(config, out, resume=resume, episodes=config.episodes if resume else None)
     return trainer.run()
 
@@ -47,7 +47,9 @@ def test_the_driver_gives_reward_scale_exploration_and_the_checkpoint_meta(tmp_p
     """No driver's name is looked up in train.py: its settings and its checkpoint meta are the object's."""
     model = make_driver(driver)
     among_traffic = {"scenario": "roads", "behaviour": "multi", "overtakers": 1, "keepers": 1}
-    config = TrainConfig(**{**TINY, **(among_traffic if model.among_traffic else {}), "driver": driver})
+    config = TrainConfig.from_options(
+        **{**TINY, **(among_traffic if model.among_traffic else {}), "driver": driver}
+    )
     trainer = Trainer(config, tmp_path)
     meta = trainer.meta()
     trainer.env.close()
@@ -73,10 +75,14 @@ def test_resume_continues_where_the_run_stopped_and_matches_an_uninterrupted_run
 
 
 def test_baselines_train_one_agent_alone_or_one_learner_per_agent(tmp_path):
-    single = prepare_run(TrainConfig(**TINY, algo="ddpg", episodes=1), tmp_path / "ddpg", resume=False)
+    single = prepare_run(
+        TrainConfig.from_options(**TINY, algo="ddpg", episodes=1), tmp_path / "ddpg", resume=False
+    )
     assert single.env.config.n_agents == 1
     single.run()
-    multi = prepare_run(TrainConfig(**TINY, algo="multi-ddpg", episodes=1), tmp_path / "multi", resume=False)
+    multi = prepare_run(
+        TrainConfig.from_options(**TINY, algo="multi-ddpg", episodes=1), tmp_path / "multi", resume=False
+    )
     multi.run()
     ckpt = load_checkpoint(tmp_path / "multi" / "checkpoints" / "final.pt")
     assert ckpt.meta["algorithm"] == "multi-ddpg" and len(ckpt.extra_state["actors"]) == 2
@@ -86,8 +92,8 @@ def test_curriculum_initialises_from_a_checkpoint_and_widens_to_the_behaviour_id
     train(tmp_path / "lk", episodes=1)
     source = tmp_path / "lk" / "checkpoints" / "final.pt"
     trainer = prepare_run(
-        TrainConfig(**{**TINY, "agents": 6}, behaviour="multi", overtakers=1, keepers=1, init=str(source),
-                    episodes=1),
+        TrainConfig.from_options(**{**TINY, "agents": 6}, behaviour="multi", overtakers=1, keepers=1,
+                                 init=str(source), episodes=1),
         tmp_path / "multi", resume=False,
     )  # fmt: skip
     old = load_actor(source).body[0].weight
@@ -104,7 +110,7 @@ def test_bad_runs_fail_with_a_clear_message(tmp_path):
     with pytest.raises(BehaveError, match="nothing to resume"):
         train(tmp_path / "empty", resume=True)
     with pytest.raises(BehaveError, match="unknown algorithm 'ppo'"):
-        TrainConfig(algo="ppo").validate()
+        TrainConfig.from_options(algo="ppo").validate()
     truncated = tmp_path / "truncated.pt"
     truncated.write_bytes((tmp_path / "lk" / "checkpoints" / "final.pt").read_bytes()[:500])
     with pytest.raises(BehaveError, match="corrupt or truncated"):
@@ -121,8 +127,8 @@ def test_sigterm_saves_a_checkpoint_and_the_state_to_resume(tmp_path):
         "import os, signal, threading, time\n"
         "from pathlib import Path\n"
         "from behaviors.train import TrainConfig, prepare_run\n"
-        f"t = prepare_run(TrainConfig(scenario='tiny', agents=2, max_steps=40, warmup=32, batch_size=16, "
-        f"hidden=(32, 32), episodes=10000), Path({str(out)!r}), resume=False)\n"
+        f"t = prepare_run(TrainConfig.from_options(scenario='tiny', agents=2, max_steps=40, warmup=32, "
+        f"batch_size=16, hidden=(32, 32), episodes=10000), Path({str(out)!r}), resume=False)\n"
         "def stop_after_first_episode():\n"
         f"    while not Path({str(out / 'metrics.csv')!r}).exists():\n"
         "        time.sleep(0.05)\n"
@@ -137,3 +143,28 @@ def test_sigterm_saves_a_checkpoint_and_the_state_to_resume(tmp_path):
     assert 0 < episodes < 10000
     resumed = train(out, resume=True, episodes=episodes + 1)
     assert len(resumed) == episodes + 1
+
+
+FLAT_CONFIG = """{"actor_lr": 0.0001, "agents": 2, "algo": "ps-ddpg", "batch_size": 16,
+  "batched_updates": false, "behaviour": "lanekeeping", "buffer_size": 5000, "checkpoint_every": 2,
+  "critic_lr": 0.001, "driver": "paper", "episodes": 1, "explore_decay_steps": 100000, "gamma": 0.99,
+  "hidden": [32, 32], "init": null, "keepers": 0, "lane_weight": 0.0, "max_minutes": null, "max_steps": 40,
+  "opponents": null, "overtakers": 0, "placement": "C", "reward_scale": null, "scenario": "tiny", "seed": 0,
+  "step_length": 0.2, "tau": 0.001, "updates_per_step": null, "warmup": 32, "workers": 1}"""
+"""config.json as runs wrote it before TrainConfig held an EnvConfig and a DDPGConfig: one flat object."""
+
+
+def test_config_json_round_trips_and_a_run_written_flat_still_resumes(tmp_path):
+    config = TrainConfig.from_options(**TINY, episodes=1)
+    assert TrainConfig.from_json(config.to_json()) == config
+    assert TrainConfig.from_json(FLAT_CONFIG) == config
+    run = tmp_path / "old"
+    train(run, episodes=1)
+    (run / "config.json").write_text(FLAT_CONFIG)  # the run as an older behave left it
+    resumed = train(run, resume=True, episodes=2)
+    assert [row["episode"] for row in resumed] == [0, 1]
+    assert TrainConfig.from_json((run / "config.json").read_text()).episodes == 2  # rewritten nested
+    with pytest.raises(BehaveError, match="unknown keys: colour"):
+        TrainConfig.from_json(config.to_json().replace('"algo"', '"colour": 1, "algo"'))
+    with pytest.raises(BehaveError, match="unknown training settings: colour"):
+        TrainConfig.from_json(FLAT_CONFIG.replace('"algo"', '"colour": 1, "algo"'))
