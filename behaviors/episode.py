@@ -25,7 +25,8 @@ def drive_episode(
 ) -> EpisodeStats | None:
     """Drive an episode just reset (`obs` from `reset_arrays`) until no agent is left; None if
     `stop()` held before a step (the caller drops the partial episode)."""
-    stats = EpisodeStats(env.config.n_agents, env.slot_behaviour.copy())
+    assert env.sim is not None, "drive_episode drives an episode just reset"
+    stats = EpisodeStats(env.config.n_agents, env.slot_behaviour.copy(), env.config.step_length, env.sim.time)
     while env.agents:
         if stop is not None and stop():
             return None

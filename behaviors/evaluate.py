@@ -17,29 +17,24 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from behaviors.agents_table import agents_path, cell, table_text
 from behaviors.drivers import make_driver
 from behaviors.env import (
     BEHAVIOURS,
-    KEEPER_TYPE,
-    OVERTAKER_TYPE,
     TRAINING_ROADS,
-    BehaveEnv,
     EnvConfig,
-    StepBatch,
     create_env,
 )
-from behaviors.episode import OnStep, drive_episode
+from behaviors.episode import drive_episode
 from behaviors.errors import BehaveError
 from behaviors.export import fcd_options, read_fcd
 from behaviors.files import atomic_write_bytes, atomic_write_text, ensure_writable_dir, temp_dir
-from behaviors.metrics import mean_rows, passed_fraction, summary
+from behaviors.metrics import agent_runs, mean_rows, passed_fraction, summary
 from behaviors.policy import Act, Policy, load_policy
-from behaviors.populate import STANDSTILL_SPEED
 from behaviors.realism import (
     SKIP_S,
     NothingToMeasure,
     Report,
-    agents_path,
     measure,
     read_agents,
     read_lanes,
@@ -51,12 +46,12 @@ from sumo_scenarios import Scenario, get_scenario
 
 
 def evaluate(
-    config: EnvConfig, policy: Act, episodes: int, seed: int, record: Path | None = None
+    config: EnvConfig, policy: Act, episodes: int, seed: int, record: Path | None = None, label: str = ""
 ) -> list[dict[str, Any]]:
     """`episodes` rows of `summary`, each from a fresh, seeded episode.
 
-    `record`: a directory where SUMO writes each episode's FCD (`episode_fcd`) and behave the
-    agents' ends beside it (`<stem>.agents.csv`, as populate's): what `behave report` reads.
+    `record`: a directory where SUMO writes each episode's FCD (`episode_fcd`) and behave the agents
+    table beside it (agents_table, `label` naming the policy): what `behave report` reads.
     """
     env = create_env(config)
     rows = []
@@ -67,66 +62,21 @@ def evaluate(
                 env.sim_extra = tuple(fcd_options(fcd, geo=False))
             obs = env.reset_arrays(episode_seed(seed, 1_000_000 + episode))
             limit = max(info.speed for info in env.geometry.edges.values() if info.normal)  # this road's
-            ends = None if fcd is None else AgentEnds(env)
-            stats = drive_episode(
-                env,
-                obs,
-                lambda obs, slots: policy(obs, slots).astype(np.float32),
-                recording(ends),
-            )
+            stats = drive_episode(env, obs, lambda obs, slots: policy(obs, slots).astype(np.float32))
             assert stats is not None  # nothing stops an evaluation's episode
-            if fcd is not None and ends is not None:
-                atomic_write_text(agents_path(fcd), ends.table().to_csv(index=False))
+            if fcd is not None:
+                runs = agent_runs(stats, env.possible_agents, label)
+                cells = ([*run.cells(), cell(float(r))] for run, r in zip(runs, stats.reward, strict=True))
+                atomic_write_text(agents_path(fcd), table_text("evaluate", cells))
             rows.append({"episode": episode, **summary(stats, limit, passed_fraction(env))})
     finally:
         env.close()
     return rows
 
 
-def recording(ends: AgentEnds | None) -> OnStep | None:
-    """The step hook that records the agents' ends, if this episode records them."""
-    return None if ends is None else lambda obs, actions, batch: ends.record(batch)
-
-
 def episode_fcd(record: Path, episode: int) -> Path:
     """Where `evaluate` has SUMO write an episode's FCD (csv: read back faster than xml)."""
     return record / f"episode_{episode}.parquet"
-
-
-class AgentEnds:
-    """How and when each agent of an episode ended, in populate's per-agent columns: the losses
-    per agent-hour of the realism report."""
-
-    def __init__(self, env: BehaveEnv) -> None:
-        assert env.sim is not None
-        n = len(env.possible_agents)
-        self.sim, self.dt = env.sim, env.config.step_length
-        self.ids = list(env.possible_agents)
-        self.vtypes = np.where(env.slot_behaviour > 0, OVERTAKER_TYPE, KEEPER_TYPE)
-        self.depart = env.sim.time
-        self.end = np.full(n, np.nan)
-        self.reason = np.full(n, "still_driving", dtype=object)
-        self.standing, self.longest = np.zeros(n), np.zeros(n)
-
-    def record(self, batch: StepBatch) -> None:
-        """After a step: standstills, and the end (time, reason) of the agents that left."""
-        slots = batch.slots
-        standing = np.where(batch.speed < STANDSTILL_SPEED, self.standing[slots] + self.dt, 0.0)
-        self.standing[slots] = standing
-        self.longest[slots] = np.maximum(self.longest[slots], standing)
-        ended = batch.terminated | batch.truncated
-        if not ended.any():  # most steps: no per-agent strings
-            return
-        self.end[slots[ended]] = self.sim.time
-        for reason, flag in (("collision", batch.collided), ("off_track", batch.off_track),
-                             ("no_progress", batch.no_progress)):  # fmt: skip
-            self.reason[slots[ended & flag]] = reason
-
-    def table(self) -> pd.DataFrame:
-        return pd.DataFrame({
-            "id": self.ids, "vtype": self.vtypes, "depart_s": self.depart, "end_s": self.end,
-            "end_reason": self.reason, "longest_standstill_s": self.longest,
-        })  # fmt: skip
 
 
 def measure_episodes(record: Path, episodes: int, net: Path) -> Report:
@@ -302,7 +252,7 @@ def run_plan(
                 else:
                     env_config, act = config, policy.act
                 fcd = record if records_fcd(config) else None
-                episodes = evaluate(env_config, act, plan.episodes, plan.seed, record=fcd)
+                episodes = evaluate(env_config, act, plan.episodes, plan.seed, record=fcd, label=label)
                 mean = mean_rows(episodes)
                 if "passed_frac" in mean:
                     mean["overtakes_per_agent"] = mean["passed_frac"] * config.n_opponents

@@ -11,7 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from behaviors.env_core import BehaveEnv, StepBatch
+from behaviors.agents_table import STANDSTILL_SPEED, AgentRun
+from behaviors.env_core import KEEPER_TYPE, OVERTAKER_TYPE, BehaveEnv, StepBatch
 
 
 @dataclass
@@ -19,10 +20,13 @@ class EpisodeStats:
     """Counters of one episode (all agents), reduced by `summary`.
 
     Agents leave at their first collision, so colliding steps per agent equal collisions per agent.
+    Each agent's end (step and reason) and standstills give its row of the agents table (`agent_runs`).
     """
 
     n_agents: int
     behaviour_id: np.ndarray
+    step_length: float
+    start_s: float  # SUMO's clock when the episode started
     steps: int = 0
     colliding_steps: int = 0
     agent_colliding_steps: int = 0
@@ -35,10 +39,17 @@ class EpisodeStats:
     reward: np.ndarray = field(init=False)
     progress: np.ndarray = field(init=False)
     collided: np.ndarray = field(init=False)
+    standing: np.ndarray = field(init=False)  # seconds standing still up to now
+    longest_standstill: np.ndarray = field(init=False)
+    end_step: np.ndarray = field(init=False)  # the step an agent left after (0: still on the road)
+    end_reason: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
-        for name in ("speed_sum", "speed_steps", "reward", "progress", "collided"):
+        for name in ("speed_sum", "speed_steps", "reward", "progress", "collided", "standing",
+                     "longest_standstill"):  # fmt: skip
             setattr(self, name, np.zeros(self.n_agents))
+        self.end_step = np.zeros(self.n_agents, np.int64)
+        self.end_reason = np.full(self.n_agents, "still_driving", dtype=object)
 
     def record(self, slots: np.ndarray, batch: StepBatch) -> None:
         self.steps += 1
@@ -53,6 +64,31 @@ class EpisodeStats:
         np.add.at(self.speed_sum, slots, batch.speed)
         np.add.at(self.speed_steps, slots, 1)
         self.lane_deviation_sum += float(batch.lane_deviation.sum())
+        standing = np.where(batch.speed < STANDSTILL_SPEED, self.standing[slots] + self.step_length, 0.0)
+        self.standing[slots] = standing
+        self.longest_standstill[slots] = np.maximum(self.longest_standstill[slots], standing)
+        ended = batch.terminated | batch.truncated
+        if ended.any():  # most steps: no per-agent strings
+            self.end_step[slots[ended]] = self.steps
+            for reason, flag in (("collision", batch.collided), ("off_track", batch.off_track),
+                                 ("no_progress", batch.no_progress)):  # fmt: skip
+                self.end_reason[slots[ended & flag]] = reason
+
+
+def agent_runs(stats: EpisodeStats, ids: list[str], policy: str) -> list[AgentRun]:
+    """The episode's rows of the agents table, by agent slot; an agent that left at the time limit or the
+    road's end was still driving."""
+    dt, start = stats.step_length, stats.start_s
+    end = start + np.where(stats.end_step > 0, stats.end_step, stats.steps) * dt
+    overtaker = stats.behaviour_id > 0
+    behaviour = ["overtaker" if over else "keeper" for over in overtaker]
+    vtype = [OVERTAKER_TYPE if over else KEEPER_TYPE for over in overtaker]
+    distance, longest = stats.speed_sum * dt, stats.longest_standstill
+    runs = []
+    for k in range(stats.n_agents):
+        ending = float(end[k]), str(stats.end_reason[k]), float(distance[k]), float(longest[k])
+        runs.append(AgentRun(ids[k], behaviour[k], vtype[k], policy, start, *ending))
+    return runs
 
 
 def summary(stats: EpisodeStats, speed_limit: float, passed: float | None = None) -> dict[str, Any]:

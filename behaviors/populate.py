@@ -40,6 +40,15 @@ import numpy as np
 import torch
 
 from behaviors.actuation import CarModel
+from behaviors.agents_table import (
+    END_REASONS,
+    LONG_STANDSTILL_S,
+    STANDSTILL_SPEED,
+    AgentRun,
+    agents_path,
+    cell,
+    columns,
+)
 from behaviors.control import Fleet, RoadFrame
 from behaviors.drivers import make_driver
 from behaviors.env import KEEPER_TYPE, OVERTAKER_TYPE
@@ -279,13 +288,6 @@ class PopulateSummary:
             self.ended[row.end_reason] += 1
 
 
-END_REASONS: tuple[str, ...] = ("arrived", "collision", "off_track", "no_progress", "still_driving")
-"""How an agent's run ends: at the end of its route, crashed, off the carriageway, taken out by
-SUMO without arriving (stuck, no progress), or still on the road when the run ends."""
-STANDSTILL_SPEED = 0.1
-"""m/s: SUMO speeds below this count as standing still."""
-LONG_STANDSTILL_S = 30.0
-"""Standing still this long at a time is reported (a car waiting at a light, or stuck)."""
 CAR_SIZE_M = {"length": (2.5, 7.5), "width": (1.2, 2.3)}
 """The sizes (m, inclusive) of a vehicle --share may turn into an agent (behave's agents are 5 m x 1.8 m):
 a vehicle of vClass passenger outside them (a 12 m vType that sets no vClass) is left to SUMO."""
@@ -328,13 +330,6 @@ class SumoCars:
         self.longest_standstill_s = max(self.longest_standstill_s, seconds)
 
 
-INCIDENT_COLUMNS = ("incident_side", "incident_lane", "incident_lane_offset_m", "incident_other",
-                    "incident_speed_mps", "incident_other_speed_mps", "incident_headway_s",
-                    "incident_lateral_gap_m")  # fmt: skip
-AGENT_COLUMNS = ("id", "behaviour", "vtype", "depart_s", "end_s", "end_reason", "distance_m",
-                 "longest_standstill_s", *INCIDENT_COLUMNS)  # fmt: skip
-
-
 @dataclass(frozen=True)
 class Incident:
     """How an agent's collision or off-track looked at the read its last action was chosen from (one
@@ -356,29 +351,14 @@ NO_INCIDENT = Incident("", "", np.nan, "", np.nan, np.nan, np.nan, np.nan)
 
 
 @dataclass(frozen=True)
-class AgentRow:
-    """One learned agent's run: a line of `<fcd stem>.agents.csv`."""
+class AgentRow(AgentRun):
+    """One learned agent's run: a line of `<fcd stem>.agents.csv`, with populate's incident columns."""
 
-    id: str
-    behaviour: str
-    vtype: str
-    depart_s: float
-    end_s: float
-    end_reason: str
-    distance_m: float
-    longest_standstill_s: float
     incident: Incident = NO_INCIDENT
 
     def cells(self) -> list[Any]:
-        """The row's CSV cells in AGENT_COLUMNS order, the incident's rounded, nan as empty."""
-        *values, incident = astuple(self)
-        return [*values, *(csv_cell(value) for value in incident)]
-
-
-def csv_cell(value: Any) -> Any:
-    if isinstance(value, float):
-        return "" if np.isnan(value) else round(value, 3)
-    return value
+        """The row's CSV cells in `agents_table.columns("populate")` order."""
+        return [*super().cells(), *(cell(value) for value in astuple(self.incident))]
 
 
 def collision_incident(
@@ -422,8 +402,9 @@ class AgentLog:
     """What each learned agent did according to SUMO (its speed after each step), from insertion
     to its end. Rows follow the fleet's: agents join and leave with it."""
 
-    def __init__(self, step_length: float) -> None:
+    def __init__(self, step_length: float, policy: str) -> None:
         self.dt = step_length
+        self.policy = policy
         self.ids: list[str] = []
         self.behaviour: list[str] = []
         self.depart = np.zeros(0)
@@ -467,15 +448,11 @@ class AgentLog:
 
     def _row(self, k: int, reason: str, time: float, incident: Incident = NO_INCIDENT) -> AgentRow:
         vtype = OVERTAKER_TYPE if self.behaviour[k] == "overtaker" else KEEPER_TYPE
+        depart, distance, longest = float(self.depart[k]), float(self.distance[k]), float(self.longest[k])
         return AgentRow(
-            self.ids[k], self.behaviour[k], vtype, round(float(self.depart[k]), 3), round(time, 3), reason,
-            round(float(self.distance[k]), 2), round(float(self.longest[k]), 3), incident,
+            self.ids[k], self.behaviour[k], vtype, self.policy, round(depart, 3), round(time, 3), reason,
+            round(distance, 2), round(longest, 3), incident,
         )  # fmt: skip
-
-
-def agents_csv_path(fcd: Path) -> Path:
-    """Where the per-agent table goes: beside the FCD, `<fcd stem>.agents.csv`."""
-    return fcd.with_name(f"{fcd.stem}.agents.csv")
 
 
 class EndedAgents:
@@ -518,7 +495,7 @@ def write_agents_csv(path: Path, ended: EndedAgents, driving: list[AgentRow]) ->
     (temp file + rename)."""
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as out:
         writer = csv.writer(out, lineterminator="\n")
-        writer.writerow(AGENT_COLUMNS)
+        writer.writerow(columns("populate"))
         ended.copy_to(out)
         writer.writerows(row.cells() for row in driving)
 
@@ -539,7 +516,7 @@ class Population:
         driver = make_driver(self.policy.driver)
         self.fleet = Fleet(self.geometry, CarModel(), config.step_length, self.timer, driver, config.shield)
         self.summary = PopulateSummary(sumo=SumoCars(config.step_length))
-        self.log = AgentLog(config.step_length)
+        self.log = AgentLog(config.step_length, self.policy.label)
         self.routes: RoutePool | None = None  # made with the simulation it hands routes to
         self.counter = {"keeper": 0, "overtaker": 0, "background": 0}
         self.pending: dict[str, str] = {}  # vehicle id -> kind, added but not yet on the road
@@ -876,7 +853,7 @@ def populate(
     run completed."""
     config.validate()
     check_output_path(config.fcd)
-    check_output_path(agents_csv_path(config.fcd))
+    check_output_path(agents_path(config.fcd))
     if config.geo:
         require_projection(config.net, "--geo writes lon/lat: the net needs a geo projection")
     torch.set_num_threads(POLICY_THREADS)
@@ -896,7 +873,7 @@ def populate(
         last_time = population.sim.time - config.step_length if population.sim else 0.0
         population.close()
         finish_fcd(partial, config.fcd, config, last_time)
-        write_agents_csv(agents_csv_path(config.fcd), population.log.ended, driving)
+        write_agents_csv(agents_path(config.fcd), population.log.ended, driving)
         population.summary.count_agents(population.log.ended, driving)
         if population.summary.sumo is not None:
             population.summary.sumo.finish()

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
+from behaviors.agents_table import LONG_STANDSTILL_S, REPORTED
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path, atomic_write_text, ensure_writable_dir
 
@@ -58,8 +59,6 @@ coarse steps, so that no pass can jump over the window between two records."""
 GROUP_BY = ("type", "id-prefix")
 GROUPS_OF_TYPE = {"behave_keeper": "keepers", "behave_overtaker": "overtakers"}
 OTHER_GROUP = "sumo"
-AGENT_COLUMNS = ("id", "vtype", "depart_s", "end_s", "end_reason", "longest_standstill_s")
-STANDSTILL_REPORTED_S = 30.0
 REQUIRED = ("id", "time", "lane", "pos", "speed")
 
 
@@ -426,21 +425,18 @@ def passes(tr: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame({"group": tr["group"].to_numpy()[passer][settled], "overtaking_side": side > 0})
 
 
-def agents_path(fcd: Path) -> Path:
-    """populate's per-agent table beside an FCD: `<fcd stem>.agents.csv`."""
-    return Path(fcd).with_name(f"{Path(fcd).stem}.agents.csv")
-
-
 def read_agents(path: Path) -> pd.DataFrame | None:
     """The per-agent table if the file exists (None if not): how and when each agent ended."""
     path = Path(path)
     if not path.is_file():
         return None
     try:
-        agents = pd.read_csv(path, dtype={"id": str, "vtype": str, "end_reason": str})
+        agents = pd.read_csv(
+            path, dtype={c: str for c in ("id", "behaviour", "vtype", "policy", "end_reason")}
+        )
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
         raise BehaveError(f"{path} is not a per-agent table ({err})") from None
-    missing = [c for c in AGENT_COLUMNS if c not in agents.columns]
+    missing = [c for c in REPORTED if c not in agents.columns]
     if missing:
         raise BehaveError(f"{path} is not a per-agent table (no {', '.join(missing)} column)")
     return agents
@@ -468,14 +464,14 @@ def stack_runs(
 
 def losses(agents: pd.DataFrame, group_by: str = "type") -> pd.DataFrame:
     """Per group: collisions, off-tracks and removals without progress per agent-hour (over the
-    agents' whole runs), and how many agents stood still STANDSTILL_REPORTED_S or longer."""
+    agents' whole runs), and how many agents stood still LONG_STANDSTILL_S or longer."""
     group = group_names(agents["id"], agents["vtype"], group_by)
     hours = (agents["end_s"] - agents["depart_s"]).clip(lower=0) / 3600
     table = pd.DataFrame({
         "group": group, "hours": hours,
         "collision": agents["end_reason"] == "collision", "off_track": agents["end_reason"] == "off_track",
         "no_progress": agents["end_reason"] == "no_progress",
-        "standing": agents["longest_standstill_s"] >= STANDSTILL_REPORTED_S,
+        "standing": agents["longest_standstill_s"] >= LONG_STANDSTILL_S,
     }).groupby("group").sum()  # fmt: skip
     rate = table[["collision", "off_track", "no_progress"]].div(
         table["hours"].where(table["hours"] > 0), axis=0
@@ -520,7 +516,7 @@ METRICS = (
     Metric("collisions_per_agent_hour", "collisions per agent-hour", "0"),
     Metric("off_tracks_per_agent_hour", "off-tracks per agent-hour", "0"),
     Metric("no_progress_per_agent_hour", "agents removed without progress per agent-hour", "0"),
-    Metric("agents_standing", f"agents that stood still >= {STANDSTILL_REPORTED_S:.0f} s"),
+    Metric("agents_standing", f"agents that stood still >= {LONG_STANDSTILL_S:.0f} s"),
 )
 LOSS_KEYS: tuple[str, ...] = (
     "collisions_per_agent_hour",

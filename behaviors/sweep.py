@@ -33,6 +33,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from behaviors.agents_table import STANDSTILL_SPEED, agents_path
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path, atomic_write_text, ensure_writable_dir
 
@@ -50,7 +51,6 @@ WALL_COLUMNS = ("wall_s", "real_time_factor", "host")
 SETTING_COLUMNS = ("id", "scenario", "scenario_path", "kind", "policy", "share", "seed", "overtakers",
                    "keepers", "background", "overtaker_fraction", "duration_s", "step_length_s",
                    "shield")  # fmt: skip
-STANDSTILL_SPEED = 0.1  # m/s, as populate counts standstills
 FLOW_GROUPS = {
     "sumo": ("sumo",),
     "agents": ("keepers", "overtakers"),
@@ -235,7 +235,7 @@ def run_point(point: Point, *, keep_fcd: bool = False, workdir: Path | None = No
         fcd = Path(folder) / f"fcd{FCD_SUFFIX}"
         start = time.perf_counter()
         try:
-            from behaviors.populate import agents_csv_path, populate
+            from behaviors.populate import populate
 
             summary = populate(point.config(fcd))
             row = ok_row(point, summary.as_dict(), fcd_figures(fcd, Path(summary_net(point))))
@@ -243,7 +243,7 @@ def run_point(point: Point, *, keep_fcd: bool = False, workdir: Path | None = No
             return RunResult(failed_row(point, error_line(exc), time.perf_counter() - start))
         if not keep_fcd:
             return RunResult(row)
-        return RunResult(row, fcd.read_bytes(), agents_csv_path(fcd).read_bytes())
+        return RunResult(row, fcd.read_bytes(), agents_path(fcd).read_bytes())
 
 
 def summary_net(point: Point) -> str:
@@ -265,7 +265,7 @@ def fcd_figures(fcd: Path, net: Path) -> dict[str, float]:
     """The flow figures (`flow_figures`) and `behave report`'s realism figures and fundamental-diagram
     summary (`edie_figures`) of a populate FCD, measured as `behave report FCD --net NET` does."""
     from behaviors.export import read_fcd
-    from behaviors.realism import Lanes, agents_path, read_agents, read_lanes
+    from behaviors.realism import Lanes, read_agents, read_lanes
 
     df = read_fcd(fcd)
     lanes = read_lanes(net) if net.is_file() else Lanes()

@@ -7,7 +7,8 @@ One loop for the three algorithms; what differs is who acts and learns:
 * ddpg: the same learner with a single agent on the road;
 * multi-ddpg: a learner per agent slot, each updated once per step.
 
-A run directory holds config.json, metrics.csv (one row per episode),
+A run directory holds config.json, metrics.csv (one row per episode), agents.csv (the agents
+table, agents_table.py: one row per agent and episode),
 checkpoints/ (last, best, final, interrupted: policy + critic), state.pt and
 replay/ (the training state as of the end of the last finished episode, for
 --resume; saved after every episode, the replay rows as append-only chunks)
@@ -32,6 +33,7 @@ from typing import Any, TypeVar
 import numpy as np
 import torch
 
+from behaviors.agents_table import cell, table_text
 from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.ddpg.learner import (
     DDPGConfig,
@@ -48,7 +50,8 @@ from behaviors.env import EnvConfig, StepBatch, create_env
 from behaviors.episode import drive_episode
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path, atomic_write_bytes, atomic_write_text, ensure_writable_dir
-from behaviors.metrics import EpisodeStats, summary
+from behaviors.metrics import EpisodeStats, agent_runs, summary
+from behaviors.policy import resolve
 
 ALGORITHMS = ("ps-ddpg", "ddpg", "multi-ddpg")
 STATE_VERSION = 2
@@ -180,17 +183,28 @@ def dataclass_from_dict(cls: type[T], data: dict[str, Any], where: str) -> T:
     return cls(**values)
 
 
-def episode_row(
-    episode: int, stats: EpisodeStats, wall: float, updates: int, speed_limit: float
-) -> dict[str, Any]:
-    """The metrics.csv row: the paper's system metrics, wall time, updates, per-agent totals."""
-    row: dict[str, Any] = {"episode": episode, **summary(stats, speed_limit)}
-    row["agent_steps"] = int(stats.speed_steps.sum())
-    row["wall_s"] = wall
-    row["updates"] = updates
-    for k, value in enumerate(stats.reward):
-        row[f"agent_{k}_reward"] = float(value)
+@dataclass(frozen=True)
+class Episode:
+    """A finished training episode: its counters, wall time and the network updates it brought."""
+
+    stats: EpisodeStats
+    wall_s: float
+    updates: int
+
+
+def episode_row(episode: int, done: Episode, speed_limit: float) -> dict[str, Any]:
+    """The metrics.csv row: the paper's system metrics, agent-steps, wall time and updates."""
+    row: dict[str, Any] = {"episode": episode, **summary(done.stats, speed_limit)}
+    row["agent_steps"] = int(done.stats.speed_steps.sum())
+    row["wall_s"] = done.wall_s
+    row["updates"] = done.updates
     return row
+
+
+def episode_agents(episode: int, stats: EpisodeStats, ids: list[str], policy: str) -> list[list[Any]]:
+    """The episode's rows of the run's agents table (agents_table, "train"): each agent and its reward."""
+    runs = agent_runs(stats, ids, policy)
+    return [[*run.cells(), episode, cell(float(r))] for run, r in zip(runs, stats.reward, strict=True)]
 
 
 class Trainer:
@@ -212,6 +226,7 @@ class Trainer:
         self.speed_limit = max(info.speed for info in self.env.geometry.edges.values() if info.normal)
         self.replay = ReplayFiles(out / "replay", self.learner.buffers)
         self.rows: list[dict[str, Any]] = []
+        self.agent_rows: list[list[Any]] = []  # the agents table's, all episodes'
         self.episode = 0
         self.best = -np.inf
         self.stop_signal: int | None = None  # SIGINT or SIGTERM, once one asked to stop
@@ -258,12 +273,14 @@ class Trainer:
         save_checkpoint(path, actor_state=actor, critic_state=critic, extra_state=extra, meta=self.meta())
         return path
 
-    def initialise_from(self, path: str) -> None:
-        """Curriculum: copy actor and critic weights (and their targets) from a checkpoint.
+    def initialise_from(self, spec: str) -> None:
+        """Curriculum: copy actor and critic weights (and their targets) from a policy as every command
+        takes it (policy.resolve: a file, a run directory or a bundled name).
 
         A 65-input policy may start a 66-input (multi-behaviour) run: the behaviour id's
         input weights start at zero, so the new network first drives exactly like the old.
         """
+        path = resolve(spec)[0]
         ckpt = load_checkpoint(path)
         if ckpt.meta["obs_dim"] not in (self.obs_dim, self.obs_dim - 1):
             load_checkpoint(path, expect_obs_dim=self.obs_dim, expect_layout=self.env.config.behaviour)
@@ -289,6 +306,7 @@ class Trainer:
             "episode": self.episode,
             "best": float(self.best),
             "rows": json.dumps(self.rows),
+            "agents": json.dumps(self.agent_rows),
             "learner": self.learner.state_dict(replay_rows=False),
             "replay": self.replay.write_new_rows(),
             "config": self.config.to_json(),
@@ -317,6 +335,7 @@ class Trainer:
         self.episode = int(payload["episode"])
         self.best = float(payload["best"])
         self.rows = json.loads(payload["rows"])
+        self.agent_rows = json.loads(payload.get("agents", "[]"))  # runs saved before the agents table: none
 
     # --- the loop ---------------------------------------------------------------------
     def run(self, on_episode: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
@@ -330,10 +349,14 @@ class Trainer:
                     and not self.stop_requested
                     and time.perf_counter() - started < budget
                 ):
-                    row = self.run_episode()
-                    if row is None:
+                    done = self.run_episode()
+                    if done is None:
                         break
+                    row = episode_row(self.episode, done, self.speed_limit)
                     self.rows.append(row)
+                    self.agent_rows += episode_agents(
+                        self.episode, done.stats, self.env.possible_agents, self.out.name
+                    )
                     self.episode += 1
                     self._after_episode(row)
                     if on_episode:
@@ -343,11 +366,11 @@ class Trainer:
                 if self.tensorboard is not None:
                     self.tensorboard.close()
         self.save_policy("interrupted" if self.stop_requested else "final")
-        write_metrics(self.out / "metrics.csv", self.rows)
+        self.write_tables()
         plot_curve(self.out / "curve.png", self.rows)
         return self.rows
 
-    def run_episode(self) -> dict[str, Any] | None:
+    def run_episode(self) -> Episode | None:
         """One episode; None if stopped by a signal (the partial episode is not logged)."""
         env, learner, c = self.env, self.learner, self.config
         start = time.perf_counter()
@@ -370,9 +393,13 @@ class Trainer:
         )
         if log is None:
             return None
-        return episode_row(
-            self.episode, log, time.perf_counter() - start, learner.updates - updates_before, self.speed_limit
-        )
+        return Episode(log, time.perf_counter() - start, learner.updates - updates_before)
+
+    def write_tables(self) -> None:
+        """metrics.csv and agents.csv of the episodes so far; neither before the first episode ends."""
+        if self.rows:
+            write_metrics(self.out / "metrics.csv", self.rows)
+            atomic_write_text(self.out / "agents.csv", table_text("train", self.agent_rows))
 
     def _after_episode(self, row: dict[str, Any]) -> None:
         """The state first (it holds the metrics rows too): a kill after it redoes no episode."""
@@ -386,7 +413,7 @@ class Trainer:
         self.save_policy("last")
         if improved:
             self.save_policy("best")
-        write_metrics(self.out / "metrics.csv", self.rows)
+        self.write_tables()
         if self.episode % self.config.checkpoint_every == 0:
             self.save_policy(f"episode_{self.episode:05d}")
             plot_curve(self.out / "curve.png", self.rows)
@@ -408,7 +435,7 @@ class DistributedTrainer(Trainer):
             self.started = self.episode
             return super().run(on_episode)
 
-    def run_episode(self) -> dict[str, Any] | None:
+    def run_episode(self) -> Episode | None:
         """The next episode any worker finishes, stored and learnt from; None if stopped."""
         learner, workers = self.learner, self.workers
         assert isinstance(learner, DDPGLearner) and workers is not None
@@ -426,9 +453,7 @@ class DistributedTrainer(Trainer):
         learner.noise.steps += rollout.steps  # env steps of all workers: the exploration decay
         per_step = self.config.updates_per_step
         learner.update(len(rollout.obs) if per_step is None else per_step * rollout.steps, self.update_log)
-        return episode_row(
-            self.episode, rollout.stats, rollout.wall_s, learner.updates - updates_before, self.speed_limit
-        )
+        return Episode(rollout.stats, rollout.wall_s, learner.updates - updates_before)
 
 
 def widen_inputs(state: dict, obs_dim: int, obs_first: bool) -> dict:
@@ -469,11 +494,10 @@ def _stop_on_signals(trainer: Trainer) -> Iterator[None]:
 
 
 def write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:
-    """The episodes' rows as CSV; no file before the first episode ends (an empty CSV has no header)."""
+    """The episodes' rows as CSV."""
     import pandas as pd
 
-    if rows:
-        atomic_write_text(path, pd.DataFrame(rows).to_csv(index=False))
+    atomic_write_text(path, pd.DataFrame(rows).to_csv(index=False))
 
 
 def open_tensorboard(directory: Path) -> Any:

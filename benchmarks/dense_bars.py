@@ -22,9 +22,10 @@ import numpy as np
 import pandas as pd
 from common import write_measured_doc
 
+from behaviors.agents_table import agents_path
 from behaviors.export import read_fcd
 from behaviors.populate import DEFAULT_POLICY, PopulateConfig, populate
-from behaviors.realism import Lanes, agents_path, group_names, measure, read_agents, read_lanes
+from behaviors.realism import Lanes, group_names, measure, read_agents, read_lanes
 from sumo_scenarios import get_scenario
 
 CAR_WIDTH = 1.8

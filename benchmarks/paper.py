@@ -464,8 +464,9 @@ def run_paper(args: argparse.Namespace) -> None:
     )
     rear = {}
     for label in ("multi-DDPG", "PS-DDPG"):
-        m = pd.read_csv(runs / f"compare-{algos[label]}" / "metrics.csv").tail(10)
-        rear[label] = [float(m[f"agent_{k}_reward"].mean()) for k in range(6)]
+        agents = pd.read_csv(runs / f"compare-{algos[label]}" / "agents.csv")
+        last = agents[agents["episode"] > agents["episode"].max() - 10]  # the last 10 episodes
+        rear[label] = [float(last.loc[last["id"] == f"agent_{k}", "reward"].mean()) for k in range(6)]
 
     # Stage 4: Tables IV and V
     ot_env = EnvConfig(scenario=scen, behaviour="overtaking", agents=4, opponents=4, max_steps=steps)

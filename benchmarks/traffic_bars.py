@@ -21,9 +21,10 @@ from pathlib import Path
 import pandas as pd
 from common import write_measured_doc
 
+from behaviors.agents_table import agents_path
 from behaviors.export import read_fcd
 from behaviors.populate import PopulateConfig, populate
-from behaviors.realism import agents_path, measure, read_agents, read_lanes, write_report
+from behaviors.realism import measure, read_agents, read_lanes, write_report
 from sumo_scenarios import get_scenario
 
 KEEPERS = "keepers"

@@ -128,7 +128,8 @@ def populate_command(
     ] = False,
 ) -> None:
     """Drive learned keepers and overtakers (one batched policy call per step) and write SUMO FCD."""
-    from behaviors.populate import agents_csv_path, config_from, populate  # torch: only when run
+    from behaviors.agents_table import agents_path
+    from behaviors.populate import config_from, populate  # torch: only when run
 
     config = config_from(
         sumocfg, net=net, overtakers=overtakers, keepers=keepers, policy=policy, background=background,
@@ -158,7 +159,7 @@ def populate_command(
     if json_out:
         import json
 
-        summary_dict = {**summary.as_dict(), "fcd": str(fcd), "agents_csv": str(agents_csv_path(fcd))}
+        summary_dict = {**summary.as_dict(), "fcd": str(fcd), "agents_csv": str(agents_path(fcd))}
         typer.echo(json.dumps({**summary_dict, "net": str(config.net), "seed": seed}))
     table = Table(title=f"behave populate: {config.net.name}, seed {seed}")
     table.add_column("metric")
@@ -173,7 +174,7 @@ def populate_command(
     if not json_out:
         Console().print(table)
     typer.echo(f"FCD written to {fcd}", err=json_out)
-    typer.echo(f"per-agent table written to {agents_csv_path(fcd)}", err=json_out)
+    typer.echo(f"per-agent table written to {agents_path(fcd)}", err=json_out)
     if plot is not None:
         from behaviors.export import read_fcd
         from behaviors.plot import plot_fcd

@@ -48,8 +48,9 @@ def report_command(
     out = out if out is not None else fcd.parent
     ensure_writable_dir(out)  # an unwritable --out fails now, not after the whole report
 
+    from behaviors.agents_table import agents_path
     from behaviors.export import read_fcd
-    from behaviors.realism import Lanes, agents_path, check_options, measure, read_agents, read_lanes, rows
+    from behaviors.realism import Lanes, check_options, measure, read_agents, read_lanes, rows
     from behaviors.realism import write_report as write_realism
 
     check_options(skip_s, group_by)

@@ -73,7 +73,8 @@ def train(
         Path | None, typer.Option(help="run directory (default runs/BEHAVIOUR-ALGO-sSEED)")
     ] = None,
     init: Annotated[
-        Path | None, typer.Option(help="start from this checkpoint (curriculum)")
+        str | None,
+        typer.Option(help="start from this policy: a .pt file, a run directory or a bundled name"),
     ] = DEFAULTS.init,
     resume: Annotated[Path | None, typer.Option(help="continue the run in this directory")] = None,
     updates_per_step: Annotated[
@@ -143,7 +144,6 @@ def train(
         **{name: given[name] for name in vars(DEFAULTS)},
         "episodes": DEFAULTS.episodes if episodes is None else episodes,
         "hidden": parse_sizes(hidden),
-        "init": str(init) if init else None,
     })  # fmt: skip
     run_dir = resume or out or Path("runs") / f"{behaviour}-{algo}-s{seed}"
     trainer = prepare_run(

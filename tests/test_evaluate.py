@@ -12,10 +12,10 @@ from typer.testing import CliRunner
 from behaviors.cli.main import app
 from behaviors.ddpg.checkpoint import save_checkpoint
 from behaviors.ddpg.networks import Actor
-from behaviors.env import StepBatch
+from behaviors.env import OVERTAKER_TYPE, StepBatch
 from behaviors.errors import BehaveError
 from behaviors.evaluate import PAPER_METRICS, plan_evaluation
-from behaviors.metrics import EpisodeStats, summary
+from behaviors.metrics import EpisodeStats, agent_runs, summary
 from behaviors.rewards import RewardTerms
 
 
@@ -32,7 +32,7 @@ def step(slots, collided, speed=20.0, reward=10.0, off_track=None, lane_deviatio
 
 
 def test_metrics_follow_the_paper_on_a_hand_made_episode():
-    stats = EpisodeStats(3, np.array([1.0, 0.0, 0.0]))
+    stats = EpisodeStats(3, np.array([1.0, 0.0, 0.0]), step_length=0.5, start_s=100.0)
     stats.record(np.array([0, 1, 2]), step([0, 1, 2], [False, False, False]))
     stats.record(np.array([0, 1, 2]), step([0, 1, 2], [True, True, False]))  # two agents, ONE colliding step
     stats.record(np.array([2]), step([2], [False], speed=10.0, lane_deviation=0.5))
@@ -46,6 +46,16 @@ def test_metrics_follow_the_paper_on_a_hand_made_episode():
     assert row["mean_speed_frac"] == pytest.approx((7 * 20 + 10) / 8 / 20)
     assert row["overtaker_speed_frac"] == pytest.approx(1.0)
     assert row["lane_deviation"] == pytest.approx(0.8 / 8)  # per agent-step
+    first, _, last = agent_runs(stats, ["a", "b", "c"], "lk")
+    assert (first.behaviour, first.vtype, first.policy) == ("overtaker", OVERTAKER_TYPE, "lk")
+    assert first.end_reason == "collision"
+    assert (first.depart_s, first.end_s, first.distance_m) == (100.0, 101.0, 20.0)  # left after step 2
+    assert (last.end_reason, last.end_s, last.distance_m, last.mean_speed_mps) == (
+        "off_track",
+        102.0,
+        35.0,
+        17.5,
+    )
 
 
 @pytest.fixture(scope="module")

@@ -1,8 +1,10 @@
 """One policy loader: every bundled policy and a traffic-driver training run through every command that
-takes a policy (evaluate, populate) on real SUMO, and what the loader infers for older files."""
+takes a policy (evaluate, populate, sweep, train --init) on real SUMO, and what the loader infers for
+older files. `behave report` and the Gymnasium and PettingZoo envs take no policy."""
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import pandas as pd
@@ -11,12 +13,13 @@ import torch
 from typer.testing import CliRunner
 
 from behaviors.cli.main import app
-from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
+from behaviors.ddpg.checkpoint import load_actor, load_checkpoint, save_checkpoint
 from behaviors.ddpg.networks import Actor
 from behaviors.errors import BehaveError
 from behaviors.lanes import TRAFFIC_OBS_SIZE
 from behaviors.policy import PRETRAINED, Policy, bundled_names, load_policy
 from behaviors.sensors import OBS_SIZE_WITH_ID
+from behaviors.sweep import Grid, check_grid, resolve_net, resolve_policy, run_point
 
 BUNDLED = bundled_names()
 
@@ -67,6 +70,40 @@ def test_populate_runs_every_bundled_policy(tmp_path, name):
     agents = agent_options(load_policy(name))
     run("populate", "--policy", name, *agents, "--background", "2", "--duration", "4", "--fcd", str(fcd))
     assert len(pd.read_csv(tmp_path / "fcd.agents.csv")) >= 2 and fcd.is_file()
+
+
+@pytest.mark.parametrize("name", BUNDLED)
+def test_a_sweep_point_runs_every_bundled_policy(name):
+    """The sweep's own checks and one of its runs, in this process (the Ray workers run the same)."""
+    overtakers, keepers = agent_options(load_policy(name))[1::2]
+    counts = {"overtakers": (int(overtakers),), "keepers": (int(keepers),)}
+    grid = Grid(
+        nets=(resolve_net("highway"),), policies=(resolve_policy(name),), background=2, duration=4.0, **counts
+    )
+    (point,) = check_grid(grid)
+    result = run_point(point, keep_fcd=True)
+    assert result.agents is not None, result.row
+    agents = pd.read_csv(io.BytesIO(result.agents))
+    assert len(agents) >= 2 and set(agents["policy"]) == {name}
+
+
+def train_options(policy: Policy) -> list[str]:
+    """The smallest training of the policy's driver and behaviour, one agent of each kind it drives."""
+    if policy.driver == "traffic":
+        return [policy.behaviour, "--driver", "traffic", "--scenario", "roads", *agent_options(policy)]
+    agents = {"multi": agent_options(policy), "overtaking": ["--agents", "1", "--opponents", "1"]}
+    return [policy.behaviour, "--scenario", "tiny", *agents.get(policy.behaviour, ["--agents", "1"])]
+
+
+@pytest.mark.parametrize("name", BUNDLED)
+def test_train_starts_from_every_bundled_policy(tmp_path, name):
+    """`--init NAME`: before its first update the new run's policy is the bundled one."""
+    out = tmp_path / "run"
+    run("train", *train_options(load_policy(name)), "--init", name, "--episodes", "1", "--max-steps", "5",
+        "--out", str(out))  # fmt: skip
+    bundled, trained = load_actor(PRETRAINED / f"{name}.pt"), load_actor(out / "checkpoints" / "final.pt")
+    for key, value in bundled.state_dict().items():
+        torch.testing.assert_close(trained.state_dict()[key], value)
 
 
 @pytest.fixture(scope="module")

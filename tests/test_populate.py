@@ -12,16 +12,15 @@ import pandas as pd
 import pytest
 import torch
 
+from behaviors.agents_table import INCIDENT_COLUMNS, columns
 from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.ddpg.networks import Actor
 from behaviors.errors import BehaveError
 from behaviors.export import read_fcd, validate_fcd_xml
 from behaviors.lanes import TRAFFIC_OBS_SIZE
 from behaviors.populate import (
-    AGENT_COLUMNS,
     BFLOAT16_MIN_BATCH,
     DEFAULT_POLICY,
-    INCIDENT_COLUMNS,
     PRETRAINED,
     PopulateConfig,
     Population,
@@ -289,7 +288,7 @@ def test_every_collision_and_off_track_is_explained_in_the_agents_table(tmp_path
     summary = populate(PopulateConfig(policy=steering_policy(tmp_path, 0.3), overtakers=0, keepers=60,
                                       background=60, duration=8.0, shield=False, fcd=fcd))  # fmt: skip
     table = pd.read_csv(tmp_path / "fcd.agents.csv", dtype={"incident_other": str})
-    assert tuple(table.columns) == AGENT_COLUMNS  # one schema, incidents or not
+    assert tuple(table.columns) == columns("populate")  # one schema, incidents or not
     crashed, left = table[table.end_reason == "collision"], table[table.end_reason == "off_track"]
     assert (len(crashed), len(left)) == (summary.collisions, summary.off_tracks)
     assert len(crashed) >= 1 and len(left) >= 1

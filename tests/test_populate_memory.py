@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from behaviors.agents_table import columns
 from behaviors.populate import (
-    AGENT_COLUMNS,
     AgentLog,
     AgentRow,
     Incident,
@@ -33,7 +33,7 @@ def end_agents(log: AgentLog, first: int, count: int, time: float) -> None:
 
 
 def test_ended_agents_do_not_stay_in_memory() -> None:
-    log = AgentLog(0.2)
+    log = AgentLog(0.2, "traffic")
     end_agents(log, 0, 100, 0.0)  # warm up whatever is allocated once
     gc.collect()
     tracemalloc.start()
@@ -51,7 +51,7 @@ def test_ended_agents_do_not_stay_in_memory() -> None:
 
 
 def test_the_agents_table_holds_the_ended_rows_in_order_then_those_driving(tmp_path: Path) -> None:
-    log = AgentLog(0.2)
+    log = AgentLog(0.2, "traffic")
     end_agents(log, 0, 4, 0.0)
     log.join(["overtaker_9"], ["overtaker"], 3.0)
     end_agents(log, 4, 2, 5.0)
@@ -59,15 +59,15 @@ def test_the_agents_table_holds_the_ended_rows_in_order_then_those_driving(tmp_p
     path = tmp_path / "fcd.agents.csv"
     write_agents_csv(path, log.ended, driving)
     rows = list(csv.reader(io.StringIO(path.read_text())))
-    assert rows[0] == list(AGENT_COLUMNS)
+    assert rows[0] == list(columns("populate"))
     assert [r[0] for r in rows[1:]] == [f"keeper_{k}" for k in range(6)] + ["overtaker_9"]
     reasons = ["collision", "arrived", "arrived", "collision", "collision", "arrived", "still_driving"]
-    assert [r[5] for r in rows[1:]] == reasons
-    assert rows[1][8:] == ["left", "e0_1", "0.4", "background_1", "20.0", "18.5", "", "0.31"]
+    assert [r[6] for r in rows[1:]] == reasons
+    assert rows[1][10:] == ["left", "e0_1", "0.4", "background_1", "20.0", "18.5", "", "0.31"]
     # the same bytes as writing the rows straight from memory
     expected = io.StringIO()
     writer = csv.writer(expected, lineterminator="\n")
-    writer.writerow(AGENT_COLUMNS)
+    writer.writerow(columns("populate"))
     writer.writerows(row.cells() for row in read_back(rows[1:-1]) + driving)
     assert path.read_text() == expected.getvalue()
     # and a second table of the same log (a later write) holds the same rows
@@ -81,9 +81,9 @@ def test_the_agents_table_holds_the_ended_rows_in_order_then_those_driving(tmp_p
 
 
 def read_back(rows: list[list[str]]) -> list[AgentRow]:
-    """AgentRows from CSV cells (the incident as text: cells() writes text as it is)."""
+    """AgentRows from CSV cells (mean speed derived; the incident as text: cells() writes text as it is)."""
     return [
-        AgentRow(r[0], r[1], r[2], float(r[3]), float(r[4]), r[5], float(r[6]), float(r[7]),
-                 Incident(*r[8:]))  # type: ignore[arg-type]
+        AgentRow(r[0], r[1], r[2], r[3], float(r[4]), float(r[5]), r[6], float(r[7]), float(r[9]),
+                 Incident(*r[10:]))  # type: ignore[arg-type]
         for r in rows
     ]  # fmt: skip

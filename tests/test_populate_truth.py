@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from behaviors.agents_table import columns as agent_columns
 from behaviors.export import read_fcd
 from behaviors.geometry import load_geometry
 from behaviors.populate import (
-    AGENT_COLUMNS,
     DEFAULT_POLICY,
     ROUTE_VARIANTS,
     PopulateConfig,
@@ -90,7 +90,7 @@ def test_agents_stuck_behind_stopped_cars_are_reported_with_sumos_speeds(tmp_pat
     summary = populate(PopulateConfig(net=net, routes=routes, policy=DEFAULT_POLICY, overtakers=0, keepers=6,
                                       background=0, duration=70.0, fcd=fcd, seed=0))  # fmt: skip
     columns, agents = read_agents(tmp_path / "out" / "run.agents.csv")
-    assert columns == list(AGENT_COLUMNS)
+    assert columns == list(agent_columns("populate"))
     assert len(agents) == summary.vehicles == 6
     out = summary.as_dict()
     for reason in ("arrived", "collision", "off_track", "no_progress", "still_driving"):

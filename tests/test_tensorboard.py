@@ -31,7 +31,7 @@ def test_episodes_are_logged_once_each_with_every_numeric_column_and_resume_appe
     metrics = pd.read_csv(run / "metrics.csv")
     logged = scalars(run)
     numeric = set(metrics.select_dtypes("number").columns)
-    assert {"reward_sum", "progress_sum", "colliding_steps_pct", "agent_1_reward"} <= numeric
+    assert {"reward_sum", "progress_sum", "colliding_steps_pct", "agent_steps"} <= numeric
     assert {tag for tag in logged if not tag.startswith("update/")} == numeric  # update/: per update
     for column in numeric:
         steps = [step for step, _ in logged[column]]

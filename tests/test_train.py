@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 import torch
 
+from behaviors.agents_table import END_REASONS, columns
 from behaviors.ddpg.checkpoint import load_actor, load_checkpoint
 from behaviors.drivers import make_driver
 from behaviors.errors import BehaveError
@@ -31,8 +32,13 @@ def test_a_short_run_writes_config_metrics_checkpoints_and_curve(tmp_path):
     assert len(rows) == 3
     metrics = pd.read_csv(run / "metrics.csv")
     expected = {"episode", "reward_sum", "progress_sum", "colliding_steps_pct", "collisions", "off_tracks",
-                "steps", "wall_s", "updates", "agent_0_reward", "agent_1_reward"}  # fmt: skip
+                "steps", "wall_s", "updates"}  # fmt: skip
     assert expected <= set(metrics.columns) and len(metrics) == 3
+    agents = pd.read_csv(run / "agents.csv")
+    assert tuple(agents.columns) == columns("train") and len(agents) == 3 * 2  # each agent of each episode
+    assert list(agents["policy"].unique()) == ["run"] and set(agents["end_reason"]) <= set(END_REASONS)
+    by_episode = agents.groupby("episode")["reward"].sum()
+    assert by_episode.to_numpy() == pytest.approx(metrics["reward_sum"].to_numpy(), rel=1e-3)
     assert metrics["updates"].sum() > 0  # the paper's schedule: one update per live agent per step
     for name in ("last", "best", "final", "episode_00002"):
         ckpt = load_checkpoint(run / "checkpoints" / f"{name}.pt", expect_obs_dim=65)
@@ -65,9 +71,12 @@ def test_resume_continues_where_the_run_stopped_and_matches_an_uninterrupted_run
     train(tmp_path / "split", episodes=2)
     resumed = train(tmp_path / "split", resume=True, episodes=4)
     assert [r["episode"] for r in resumed] == [0, 1, 2, 3]
-    columns = ["reward_sum", "steps", "updates", "collisions", "off_tracks"]
+    compared = ["reward_sum", "steps", "updates", "collisions", "off_tracks"]
     for got, want in zip(resumed, whole, strict=True):
-        assert [got[c] for c in columns] == pytest.approx([want[c] for c in columns])
+        assert [got[c] for c in compared] == pytest.approx([want[c] for c in compared])
+    split, whole_agents = (pd.read_csv(tmp_path / name / "agents.csv") for name in ("split", "whole"))
+    assert set(split["policy"]) == {"split"}  # the run's directory names its policy
+    pd.testing.assert_frame_equal(split.drop(columns="policy"), whole_agents.drop(columns="policy"))
     a = load_actor(tmp_path / "whole" / "checkpoints" / "final.pt").state_dict()
     b = load_actor(tmp_path / "split" / "checkpoints" / "final.pt").state_dict()
     for key in a:
