@@ -68,13 +68,13 @@ class TrainConfig:
     own settings; saved as config.json and read back on --resume."""
 
     env: EnvConfig = field(default_factory=lambda: EnvConfig(seed=0))
-    ddpg: DDPGConfig = field(default_factory=DDPGConfig)
+    ddpg: DDPGConfig = field(default_factory=DDPGConfig)  # the driver's `exploration` replaces its OU noise
     algo: str = "ps-ddpg"
     episodes: int = 100
     updates_per_step: int | None = None  # None: one per live agent (the paper)
     reward_scale: float | None = None  # for the critic (logged raw); None: the driver's reward_scale
     checkpoint_every: int = 10
-    init: str | None = None  # checkpoint to start from (curriculum: overtaking from lane keeping)
+    init: str | None = None  # a policy to start from, as policy.resolve takes it (curriculum)
     max_minutes: float | None = None  # wall-clock budget: stop after the episode that exceeds it
     workers: int = 1  # more: rollout workers on Ray (distributed.py), one learner (DistributedTrainer)
 
