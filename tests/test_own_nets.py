@@ -12,9 +12,9 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
+from behaviors.agents_table import agents_path
 from behaviors.export import read_fcd
 from behaviors.populate import config_from, populate
-from behaviors.realism import agents_path
 from sumo_scenarios.osm_like import build_osm_like
 
 DURATION = 100.0  # s: cars leaving in the first ~20 s reach the end of the exit ramp

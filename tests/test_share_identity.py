@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from behaviors.agents_table import agents_path
 from behaviors.export import fcd_options, read_fcd
 from behaviors.populate import config_from, populate
-from behaviors.realism import agents_path
 from behaviors.sim import COLLISION_OPTIONS
 from behaviors.sumo_home import sumo_binary
 from sumo_scenarios.osm_like import Demand, build_osm_like
