@@ -292,6 +292,14 @@ class SumoSim:
         """SUMO's driver keeps `vid` in its lane: it follows and never changes lanes."""
         self._sumo.vehicle.setLaneChangeMode(vid, 0)
 
+    def hold_speed(self, ids: Sequence[str], speed: float) -> None:
+        """SUMO's drivers of `ids` drive at `speed` (braking as hard as their vType may to reach it)
+        and keep their lanes; a negative speed gives them back their own speed and lane choice."""
+        v = self._sumo.vehicle
+        for vid in ids:
+            v.setSpeed(vid, speed)
+            v.setLaneChangeMode(vid, SUMO_LANE_CHANGE_MODE if speed < 0 else 0)
+
     def set_speed_factor(self, vid: str, factor: float) -> None:
         self._sumo.vehicle.setSpeedFactor(vid, factor)
 

@@ -540,6 +540,39 @@ def test_roads_with_queues_have_a_queue_crawling_in_the_slow_lane_while_the_othe
         env.close()
 
 
+def test_the_cars_stopped_are_the_nearest_ahead_in_each_lane_of_the_own_edge():
+    lanes = ["e1_0", "e1_1", "e1_1", "e1_2", "e2_0", "e1_0", "e1_2"]
+    pos = np.array([150.0, 140.0, 120.0, 90.0, 130.0, 300.0, 105.0])
+    # own place e1 at 100 m: e1_0's car at 150, e1_1's nearer one at 120; e1_2's at 105 is too near,
+    # the one at 90 behind; e2 is another edge and e1_0's car at 300 beyond reach
+    assert traffic_env.cars_ahead_per_lane(lanes, pos, "e1_1", 100.0, (10.0, 150.0)) == [0, 2]
+
+
+def test_stop_and_go_episodes_stop_the_traffic_ahead_of_an_agent_and_let_it_move_on(monkeypatch):
+    monkeypatch.setattr(traffic_env, "STOP_EPISODES", 1.0)
+    monkeypatch.setattr(traffic_env, "STOP_AFTER_S", (1.0, 1.0))
+    monkeypatch.setattr(traffic_env, "STOP_FOR_S", (12.0, 12.0))
+    env = make_env("ring", behaviour="multi", overtakers=2, keepers=2, driver="traffic", seed=2,
+                   max_steps=120, traffic_density=(25.0, 25.0))  # fmt: skip
+    try:
+        env.reset_arrays(seed=2)
+        event = env.stop_and_go
+        assert event is not None and (event.stop, event.go) == (5, 65)
+        stopped, speeds = [], {}
+        for step in range(1, 100):
+            if not env.agents:
+                break
+            env.step_arrays(np.tile([0.0, 0.5, 0.0], (len(env.agents), 1)).astype(np.float32))
+            stopped = stopped or list(env.stopped)
+            if step in (60, 99):
+                vehicles = env.sim.read_vehicles()
+                speeds[step] = [vehicles.speed[vehicles.row[v]] for v in stopped if v in vehicles.row]
+        assert len(speeds[60]) >= 2 and max(speeds[60]) < 0.1  # the traffic ahead stands
+        assert min(speeds[99]) > 3.0 and env.stopped == []  # and has moved on
+    finally:
+        env.close()
+
+
 @pytest.mark.parametrize("name", ["motorway3_lefthand", "carriageway2"])
 def test_lanes_and_lane_places_derived_from_positions_are_sumos_own(tmp_path, monkeypatch, name):
     """Agents still well inside last step's lane get their lane, lane position and lateral offset
