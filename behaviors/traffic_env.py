@@ -118,7 +118,8 @@ def plan_stop_and_go(agents: list[str], step_length: float, rng: np.random.Gener
         return None
     stop = rng.uniform(*STOP_AFTER_S)
     go = stop + rng.uniform(*STOP_FOR_S)
-    return StopAndGo(agents[int(rng.integers(len(agents)))], round(stop / step_length), round(go / step_length))
+    agent = agents[int(rng.integers(len(agents)))]
+    return StopAndGo(agent, round(stop / step_length), round(go / step_length))
 
 
 def cars_ahead_per_lane(
@@ -130,9 +131,9 @@ def cars_ahead_per_lane(
     nearest: dict[str, tuple[float, int]] = {}
     for k, (lane, pos) in enumerate(zip(lane_ids, lane_pos.tolist(), strict=True)):
         ahead = pos - own_pos
-        if lane.rpartition("_")[0] == edge and reach[0] <= ahead <= reach[1]:
-            if lane not in nearest or ahead < nearest[lane][0]:
-                nearest[lane] = (ahead, k)
+        in_reach = lane.rpartition("_")[0] == edge and reach[0] <= ahead <= reach[1]
+        if in_reach and (lane not in nearest or ahead < nearest[lane][0]):
+            nearest[lane] = (ahead, k)
     return sorted(k for _, k in nearest.values())
 
 
