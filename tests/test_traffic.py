@@ -18,6 +18,8 @@ from behaviors.actuation import (
     actuate_lanes,
     following_accel,
     gap_acceptable,
+    lane_intent,
+    letting_in,
 )
 from behaviors.control import Fleet
 from behaviors.drivers import TrafficDriver, make_driver
@@ -397,6 +399,31 @@ def test_a_change_is_given_up_for_a_car_that_comes_alongside():
     gap[0, 3] = 0.0  # a car has come up alongside in the fast lane
     given_up = drive_lanes([1.0] * 3, lateral=ruled, leaders=(gap, other))
     assert set(given_up[:, 4]) == {0}
+
+
+def test_a_car_ahead_in_a_lane_that_ends_is_let_in_and_one_alongside_is_passed():
+    ruled = LaneDriving()
+    ends = np.array([[2000.0, 2000.0, 120.0]])  # the slow-side lane ends 120 m on, the own lane leads on
+    speed, desired = np.array([6.0]), np.array([30.0])
+    waiting = leaders_of(slow_lead=(4, 6.0, 0.0))  # 6 m ahead, standing at the end of its lane
+    brake = letting_in(speed, desired, *waiting, ends, ruled)
+    assert -ruled.safe_decel <= brake[0] < -0.5  # it holds back to leave the gap
+    alongside = leaders_of(slow_lead=(4, 1.0, 0.0))  # too near to leave it a gap: passed
+    assert letting_in(speed, desired, *alongside, ends, ruled)[0] == np.inf
+    through = np.array([[2000.0, 2000.0, 2000.0]])  # the slow-side lane leads on: nobody waits to merge
+    assert letting_in(speed, desired, *waiting, through, ruled)[0] == np.inf
+
+
+def test_no_lane_change_begins_inside_a_junction_but_one_under_way_goes_on():
+    ruled = LaneDriving()
+    steer, lanes = np.array([1.0, 1.0]), np.array([1, 1])
+    changing, offset, width = np.array([0, 1]), np.array([0.0, 0.5]), np.array([3.5, 3.5])
+    ok = np.ones((2, 2), bool)
+    free = np.zeros(2, bool)
+    open_road = lane_intent(steer, changing, offset, width, lanes, lanes, ok, ruled, free, np.ones(2, bool))
+    junction = lane_intent(steer, changing, offset, width, lanes, lanes, ok, ruled, free, np.ones(2, bool),
+                           may_begin=np.zeros(2, bool))  # fmt: skip
+    assert open_road.tolist() == [1, 1] and junction.tolist() == [0, 1]
 
 
 def test_car_following_settles_at_a_human_headway_and_stops_behind_a_standing_car():
