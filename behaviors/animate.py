@@ -38,7 +38,7 @@ ROAD_COLOUR, MARKING_COLOUR = "#d9d9d9", "#555555"
 @dataclass(frozen=True)
 class AnimateOptions:
     every: float = 1.0  # FCD seconds per frame
-    fps: float = 10.0  # frames per second of playback
+    fps: int = 10  # frames per second of playback
     follow: str | None = None  # vehicle id the view follows
     window: float = 200.0  # m: the width of the followed view
     net: Path | None = None  # None: the net the FCD names, if it can be found
@@ -82,16 +82,22 @@ def time_label(t: float, every: float) -> str:
     return f"t = {t:.{decimals}f} s"
 
 
-def car_boxes(x: np.ndarray, y: np.ndarray, angle: np.ndarray, length: float, width: float) -> np.ndarray:
+def car_boxes(
+    x: np.ndarray,
+    y: np.ndarray,
+    angle: np.ndarray,
+    length: float,
+    width: float,
+    scale: tuple[float, float] = (1.0, 1.0),
+) -> np.ndarray:
     """[N, 4, 2] corners of each car from SUMO's front-bumper position and angle (degrees clockwise
-    from north)."""
+    from north); `scale` turns the metre offsets into the coordinates' units (degrees of lon/lat)."""
     heading = np.radians(angle)
     ahead = np.stack([np.sin(heading), np.cos(heading)], axis=1)
     right = np.stack([np.cos(heading), -np.sin(heading)], axis=1)
-    front = np.stack([x, y], axis=1)
-    back = front - length * ahead
     half = width / 2 * right
-    return np.stack([front + half, front - half, back - half, back + half], axis=1)
+    offsets = np.stack([half, -half, -half - length * ahead, half - length * ahead], axis=1)
+    return np.stack([x, y], axis=1)[:, None, :] + offsets * np.asarray(scale)
 
 
 def follow_centres(times: np.ndarray, xy: np.ndarray, instants: np.ndarray) -> np.ndarray:
@@ -238,10 +244,12 @@ def animate_fcd(
     with atomic_path(out) as tmp, writer.saving(figure, str(tmp), DPI):
         for k, (instant, step) in enumerate(zip(instants.tolist(), shown.tolist(), strict=True)):
             rows = slice(starts[step], ends[step])
-            boxes = car_boxes(*xy[rows].T, angle[rows], CAR_LENGTH * scale[0], CAR_WIDTH * scale[1])
+            boxes = car_boxes(
+                xy[rows, 0], xy[rows, 1], angle[rows], CAR_LENGTH * scale[0], CAR_WIDTH * scale[1]
+            )
             cars.set_verts(list(boxes))
-            cars.set_facecolors(list(colours[rows]))
-            cars.set_linewidths(np.where(ids[rows] == options.follow, 1.5, 0.3))
+            cars.set_facecolor(list(colours[rows]))
+            cars.set_linewidth(np.where(ids[rows] == options.follow, 1.5, 0.3).tolist())
             stamp.set_text(time_label(instant, options.every))
             if centres is not None:
                 _centre_on(axes, centres[k], options.window, scale)
@@ -251,7 +259,7 @@ def animate_fcd(
     return len(instants)
 
 
-def movie_writer(out: Path, fps: float) -> Any:
+def movie_writer(out: Path, fps: int) -> Any:
     """Pillow's GIF writer (palette frames) or matplotlib's ffmpeg writer: both `saving(figure,
     path, dpi)` and `grab_frame()`."""
     if out.suffix.lower() == ".gif":
@@ -332,7 +340,7 @@ class PaletteGifWriter:
 
     COLOURS = 64
 
-    def __init__(self, fps: float) -> None:
+    def __init__(self, fps: int) -> None:
         self.fps = fps
         self.frames: list[Any] = []
         self.figure: Figure | None = None

@@ -19,7 +19,7 @@ def animate_command(
     every: Annotated[
         float, typer.Option(help="simulated seconds between two frames", callback=POSITIVE)
     ] = 1.0,
-    fps: Annotated[float, typer.Option(help="frames per second when played", callback=POSITIVE)] = 10.0,
+    fps: Annotated[int, typer.Option(help="frames per second when played", callback=POSITIVE)] = 10,
     follow: Annotated[
         str | None, typer.Option(help="a vehicle id: the view follows it (--window metres wide)")
     ] = None,
