@@ -55,7 +55,7 @@ class SimOptions:
     lateral_resolution: float = 0.8
     seed: int = 0
     extra: tuple[str, ...] = field(default_factory=tuple)
-    gui: bool = False  # sumo-gui: libsumo shows the same simulation in SUMO's window
+    gui: bool = False  # run in sumo-gui, driven over TraCI (see sumo_api)
 
     def command(self) -> list[str]:
         cmd = [
@@ -170,14 +170,14 @@ class SumoSim:
     a second raises BehaveError until the first is closed (or garbage collected, which closes it)."""
 
     def __init__(self, options: SimOptions) -> None:
-        import libsumo  # deferred: importing libsumo is slow and prints nothing useful at import
-
         _claim(self)
+        libsumo = sumo_api(options.gui)
         self._sumo = libsumo
         self._fast = fast_vehicle_calls(libsumo)
         self.options = options
         try:
-            libsumo.start(options.command())
+            with contextlib.redirect_stdout(sys.stderr):  # TraCI prints its connection attempts
+                libsumo.start(options.command(), **({"stdout": sys.stderr} if options.gui else {}))
         except Exception as exc:  # libsumo raises its own TraCIException/FatalSumoError types
             _release(self)
             raise sumo_error(exc, options, "could not start") from None
@@ -400,6 +400,19 @@ class SumoSim:
 
 FAST_CALLS = ("getPosition", "getDistance", "getLaneID", "getLanePosition", "getLateralLanePosition",
               "getSpeed", "setSpeed", "changeSublane")  # fmt: skip
+
+
+def sumo_api(gui: bool) -> ModuleType:
+    """libsumo (SUMO inside this process), or for sumo-gui TraCI: the same calls over a socket to a
+    sumo-gui process. libsumo's own GUI (the wheel has one) hung in `close` after runs with vehicles
+    (SUMO 1.28), and a GUI in its own process cannot take behave down with it."""
+    if gui:
+        import traci
+
+        return traci
+    import libsumo  # deferred: importing libsumo is slow and prints nothing useful at import
+
+    return libsumo
 
 
 def fast_vehicle_calls(libsumo: ModuleType) -> SimpleNamespace:

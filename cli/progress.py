@@ -43,7 +43,8 @@ def line_due(done: float, total: float, last_done: float, now: float, last_time:
 
 def progress_line(what: str, done: float, total: float, unit: str, elapsed: float) -> str:
     percent = 100 * done / total if total > 0 else 100.0
-    return f"{what}: {done:,.0f}/{total:,.0f} {unit} ({percent:.0f}%), {elapsed:,.0f} s elapsed"
+    amount = f"{round(done, 1):,g}/{round(total, 1):,g} {unit}"  # 0.6/5 s, 360/3,600 s
+    return f"{what}: {amount} ({percent:.0f}%), {elapsed:,.0f} s elapsed"
 
 
 class ProgressLines:

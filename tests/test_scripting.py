@@ -7,6 +7,7 @@ import io
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -149,3 +150,17 @@ def test_gui_without_a_display_stops_before_anything_runs(tmp_path: Path):
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("behave: error: --gui needs a display"), done.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.skipif(
+    not os.environ.get("DISPLAY") and shutil.which("xvfb-run") is None, reason="no display and no xvfb-run"
+)
+def test_gui_runs_the_same_simulation(tmp_path: Path):
+    args = ["populate", "--duration", "3", "-q"]
+    gui = [*BEHAVE, *args, "--gui", "--fcd", str(tmp_path / "gui.xml")]
+    if not os.environ.get("DISPLAY"):
+        gui = ["xvfb-run", "-a", *gui]
+    done = subprocess.run(gui, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert behave(*args, "--fcd", str(tmp_path / "plain.xml")).returncode == 0
+    assert (tmp_path / "gui.xml").read_text() == (tmp_path / "plain.xml").read_text()
