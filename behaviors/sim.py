@@ -170,8 +170,8 @@ class SumoSim:
     a second raises BehaveError until the first is closed (or garbage collected, which closes it)."""
 
     def __init__(self, options: SimOptions) -> None:
-        _claim(self)
         libsumo = sumo_api(options.gui)
+        _claim(self)
         self._sumo = libsumo
         self._fast = fast_vehicle_calls(libsumo)
         self.options = options
