@@ -210,6 +210,8 @@ class LaneDriving:
     min_time_headway: float = 1.1  # s: the policy's accel may not push the car closer behind its leader
     diagonal_headway: float = 0.3  # s: kept behind the fast-side lane's leader not to be passed
     pass_margin: float = 1.0  # m/s: a leader this much slower than the car wants is a reason to pass
+    let_in_gap: float = 10.0  # m: a car this close ahead in a neighbour lane that ends is let in
+    let_in_headway: float = 0.5  # s: kept behind a car being let in, until it has moved over
     # m/s: above this the fast-side leader is not passed on its slow side
     no_undertaking_above: float = 60 / 3.6
 
@@ -267,6 +269,7 @@ def lane_intent(
     slow_side_free: np.ndarray | None = None,
     held_up: np.ndarray | None = None,
     leave: np.ndarray | None = None,
+    may_begin: np.ndarray | None = None,
 ) -> np.ndarray:
     """[N] int: the lane each agent heads for, relative to its own (+1 the fast side, -1 the slow
     side, 0 its own), given `changing`, the same at the last step. A change begins only where
@@ -275,7 +278,9 @@ def lane_intent(
     wish means keeping right where that lane is free, a wish for the fast side counts only where
     `held_up` [N] bool, a car whose own lane ends moves to the side `leave` [N] (+1/-1, 0: none)
     says, and a change whose gap stops being acceptable before the car crosses the
-    line is given up (a car came up alongside, or one of the two cars crossing paths). Otherwise a
+    line is given up (a car came up alongside, or one of the two cars crossing paths). No change
+    begins where `may_begin` [N] bool is False (inside a junction, whose lanes are a connection's,
+    not the carriageway's: SUMO's lane numbers and neighbours there are no guide). Otherwise a
     change under way goes on whatever the steer: a policy that could call changes off learnt to
     start one and call it off at the next step, riding beside the line.
 
@@ -299,6 +304,8 @@ def lane_intent(
         lost = ~acceptable[np.arange(len(changing)), np.where(changing > 0, 0, 1)]
         going = np.where((changing != 0) & before_line & lost, 0, going)
     room = np.where(wish > 0, (lanes_fast > 0) & acceptable[:, 0], (lanes_slow > 0) & acceptable[:, 1])
+    if may_begin is not None:
+        room &= may_begin
     return np.where((changing == 0) & (wish != 0) & room, wish, going)
 
 
@@ -352,6 +359,42 @@ def not_undertaking(
     diagonal = replace(lateral.following, time_headway=lateral.diagonal_headway, min_gap=0.0)
     behind = following_accel(speed, desired_speed, np.where(applies, gap[:, 2], np.inf), lead_speed, diagonal)
     return np.where(applies, behind, np.inf)
+
+
+def letting_in(
+    speed: np.ndarray,
+    desired_speed: np.ndarray,
+    gap: np.ndarray,
+    other_speed: np.ndarray,
+    lane_leads_on: np.ndarray,
+    lateral: LaneDriving,
+) -> np.ndarray:
+    """[N] the acceleration that lets a car merge in front, zip fashion: a car between the standing
+    gap it would take and `let_in_gap` ahead in a neighbour lane that ends within max(`ending_lane_m`,
+    `ending_lane_s` at speed), and sooner than the own lane, is followed as a leader, braking no
+    harder than `safe_decel` (+inf where there is none). A car nearer, or alongside, is passed, so a
+    through lane and an ending lane take turns; without this a lane drop in dense traffic filled the
+    ending lane with cars waiting for a gap nobody opened. `lane_leads_on` [N, 3] metres (own, fast
+    side, slow side)."""
+    soon = np.maximum(lateral.ending_lane_m, lateral.ending_lane_s * speed)
+    courtesy = replace(
+        lateral.following, time_headway=lateral.let_in_headway, min_gap=lateral.following.min_gap + 1.0
+    )
+    out = np.full(len(speed), np.inf)
+    for column, lane in ((2, 1), (4, 2)):
+        there = np.isfinite(other_speed[:, column]) & (gap[:, column] < lateral.let_in_gap)
+        there &= gap[:, column] > lateral.following.min_gap  # one nearer (or alongside) is passed
+        ending = (lane_leads_on[:, lane] < soon) & (lane_leads_on[:, lane] < lane_leads_on[:, 0])
+        applies = there & ending
+        follow = following_accel(
+            speed,
+            desired_speed,
+            np.where(applies, gap[:, column], np.inf),
+            np.nan_to_num(other_speed[:, column]),
+            courtesy,
+        )
+        out = np.where(applies, np.minimum(out, np.maximum(follow, -lateral.safe_decel)), out)
+    return out
 
 
 def lateral_profile(
@@ -410,6 +453,7 @@ def actuate_lanes(
     side_limit: np.ndarray | None = None,
     speed_cap: np.ndarray | None = None,
     lane_leads_on: np.ndarray | None = None,
+    on_normal_edge: np.ndarray | None = None,
 ) -> LaneCommand:
     """One control step of the traffic driver for all agents.
 
@@ -418,7 +462,8 @@ def actuate_lanes(
     mirrors); `offset` and `half_width` are the carriageway's. `gap`/`other_speed` [N, 6]: the
     neighbours in lanes.NEIGHBOUR_SLOTS order (gap +inf where none, 0 alongside or no lane). `angle` in
     the result is atan(lateral speed / speed). A car that heads for a neighbour lane also
-    follows that lane's leader, as a driver who moves over does.
+    follows that lane's leader, as a driver who moves over does. No change begins off
+    `on_normal_edge` [N] bool (None: everywhere).
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
     acceptable = gap_acceptable(speed, desired_speed, gap, other_speed, lateral)
@@ -443,6 +488,7 @@ def actuate_lanes(
         free,
         held,
         leave,
+        on_normal_edge,
     )
     rows = np.arange(len(steer))
     target_column = np.where(heading > 0, 2, np.where(heading < 0, 4, 0))  # the leader there
@@ -460,6 +506,10 @@ def actuate_lanes(
     if lateral.keep_right:  # the target lane's leader and the fast-side leader bound the policy too
         bound = np.where(heading != 0, into, np.inf)
         bound = np.minimum(bound, not_undertaking(speed, desired_speed, gap, other_speed, lateral))
+        if lane_leads_on is not None:
+            bound = np.minimum(
+                bound, letting_in(speed, desired_speed, gap, other_speed, lane_leads_on, lateral)
+            )
         closest = replace(lateral.following, time_headway=lateral.min_time_headway)  # no tailgating
         bound = np.minimum(
             bound, following_accel(speed, desired_speed, gap[:, 0], other_speed[:, 0], closest)

@@ -318,6 +318,7 @@ class TrafficDriver:
             own.lateral_speed, own.lateral_accel, own.changing, lanes.lane_offset, lanes.lane_width,
             lanes.lanes - 1 - lanes.lane_number, lanes.lane_number, f.offset, f.half_width, f.speed_limit,
             fleet.dt, fleet.car, self.lateral, r.side_limit, r.speed_cap, lanes.lane_leads_on,
+            f.on_normal_edge,
         )  # fmt: skip
         # a junction's internal edge holds only the lanes of some connections, not the
         # carriageway: the move stays clamped to it, but leaving it is not off the road

@@ -19,7 +19,10 @@ Design choices (see README, "Populate"):
   cars is fixed by the seed and the car's id (a hash), not by what happens in the run, and
   the others stay SUMO's, driving as in the plain SUMO run until they meet an agent.
 * SUMO writes the FCD itself (so the format is exactly SUMO's), to a temporary
-  file that is renamed into place only when the run completed.
+  file that is renamed into place only when the run completed. Ctrl-C ends the run
+  after the step under way: what was simulated is kept as a whole FCD (and agents
+  table), and `populate` raises PopulateInterrupted with the summary marked cut short.
+* `gui` runs the same simulation in sumo-gui (libsumo's own GUI), coloured by vType.
 """
 
 from __future__ import annotations
@@ -56,10 +59,11 @@ from behaviors.errors import BehaveError
 from behaviors.export import FCD_SUFFIXES, fcd_options, require_projection, seal_fcd
 from behaviors.files import atomic_path, check_output_path, temp_path
 from behaviors.geometry import CAR_CLASS, RoadGeometry, load_geometry
+from behaviors.interrupt import sigint_between_steps
 from behaviors.policy import PRETRAINED, Policy, load_policy
 from behaviors.scenario_config import LATERAL_RESOLUTION, ScenarioConfig, read_sumocfg, share_draw
 from behaviors.sensors import crowded
-from behaviors.sim import SimOptions, SumoSim, VehicleState
+from behaviors.sim import SimOptions, SumoSim, VehicleState, check_display
 from behaviors.timing import PhaseTimer
 from behaviors.traffic_env import desired_fractions
 from sumo_scenarios import get_scenario
@@ -91,6 +95,7 @@ class PopulateConfig:
     sumocfg: Path | None = None  # the user's scenario; `net` is then its net
     share: float = 0.0  # of the scenario's passenger cars, the fraction that become agents
     overtaker_fraction: float = 0.5  # of those agents, the fraction that are overtakers
+    gui: bool = False  # run in sumo-gui (needs a display)
 
     @property
     def share_kinds(self) -> tuple[bool, bool]:
@@ -118,6 +123,8 @@ class PopulateConfig:
                 raise BehaveError(f"{name.replace('_', ' ')} must be in [0, 1], got {getattr(self, name)}")
         if self.share > 0 and self.sumocfg is None:
             raise BehaveError("--share converts a scenario's own cars: it needs --sumocfg")
+        if self.gui:
+            check_display()
 
 
 def config_from(sumocfg: Path | None, **given: Any) -> PopulateConfig:
@@ -236,6 +243,7 @@ class PopulateSummary:
     longest_standstill_s: float = 0.0
     sumo: SumoCars | None = None  # SUMO's own vehicles, measured as the agents are
     phases: dict[str, float] = field(default_factory=dict)
+    cut_short: bool = False  # stopped by Ctrl-C before the duration: simulated_s says how far it got
 
     @property
     def real_time_factor(self) -> float:
@@ -542,7 +550,7 @@ class Population:
         fcd = () if fcd_tmp is None else tuple(fcd_options(fcd_tmp, geo=c.geo))
         extra = ("--begin", "0", *fcd)
         options = SimOptions(net=c.net, additional=(vtypes,), routes=routes, step_length=c.step_length,
-                             seed=c.seed, extra=extra)  # fmt: skip
+                             seed=c.seed, extra=extra, gui=c.gui)  # fmt: skip
         if scenario is not None:  # the sumocfg's options, its files named again beside behave's
             options = replace(
                 options, additional=(*scenario.additional, vtypes), routes=(*scenario.routes, *routes),
@@ -832,14 +840,17 @@ def partial_path(final: Path) -> Path:
     return temp_path(final)
 
 
-def finish_fcd(partial: Path, final: Path, config: PopulateConfig, last_time: float) -> None:
+def finish_fcd(
+    partial: Path, final: Path, config: PopulateConfig, last_time: float, cut_short: bool = False
+) -> None:
     """Check SUMO's FCD is whole and move it into place; XML gets a deterministic header (equal
-    seeds give equal bytes) that says whether it holds lon/lat."""
+    seeds give equal bytes) that says whether it holds lon/lat, and where Ctrl-C cut the run short."""
+    cut = f" cut-short-after={last_time + config.step_length:g}" if cut_short else ""
     header = (
         f"<!-- behave populate: net={config.net.name} overtakers={config.overtakers} "
         f"keepers={config.keepers} background={config.background} duration={config.duration} "
         f"step-length={config.step_length} seed={config.seed}{' geo=true' if config.geo else ''}"
-        f"{f' sumocfg={config.sumocfg.name} share={config.share}' if config.sumocfg else ''} -->\n"
+        f"{f' sumocfg={config.sumocfg.name} share={config.share}' if config.sumocfg else ''}{cut} -->\n"
     )
     seal_fcd(partial, final, header=header, geo=config.geo, last_time=last_time, step=config.step_length)
 
@@ -865,14 +876,18 @@ def populate(
             on_status("starting SUMO")
         population.start(partial)
         steps = round(config.duration / config.step_length)
-        for _ in range(steps):
-            population.step()
-            if on_step:
-                on_step(population.summary.simulated_s)
+        with sigint_between_steps() as interrupted:
+            for _ in range(steps):
+                population.step()
+                if on_step:
+                    on_step(population.summary.simulated_s)
+                if interrupted():
+                    population.summary.cut_short = True
+                    break
         driving = population.driving_rows()
         last_time = population.sim.time - config.step_length if population.sim else 0.0
         population.close()
-        finish_fcd(partial, config.fcd, config, last_time)
+        finish_fcd(partial, config.fcd, config, last_time, population.summary.cut_short)
         write_agents_csv(agents_path(config.fcd), population.log.ended, driving)
         population.summary.count_agents(population.log.ended, driving)
         if population.summary.sumo is not None:
@@ -884,4 +899,16 @@ def populate(
             partial.unlink()
     population.summary.wall_s = time.perf_counter() - start
     population.summary.phases = dict(population.timer.seconds)
+    if population.summary.cut_short:
+        raise PopulateInterrupted(population.summary)
     return population.summary
+
+
+class PopulateInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped `populate` between two steps; the FCD and agents table up to the last whole
+    step were written (complete files, sealed as a finished run's). Still a KeyboardInterrupt, so a
+    caller that does not look for it stops as on any Ctrl-C."""
+
+    def __init__(self, summary: PopulateSummary) -> None:
+        super().__init__(f"interrupted after {summary.simulated_s:g} simulated seconds")
+        self.summary = summary

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import os
 import re
+import sys
 import weakref
 import xml.etree.ElementTree as ET
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import chain
 from pathlib import Path
@@ -53,10 +55,11 @@ class SimOptions:
     lateral_resolution: float = 0.8
     seed: int = 0
     extra: tuple[str, ...] = field(default_factory=tuple)
+    gui: bool = False  # run in sumo-gui, driven over TraCI (see sumo_api)
 
     def command(self) -> list[str]:
         cmd = [
-            sumo_binary("sumo"),
+            sumo_binary("sumo-gui" if self.gui else "sumo"),
             "--net-file",
             str(self.net),
             "--step-length",
@@ -77,7 +80,30 @@ class SimOptions:
             cmd += ["--additional-files", ",".join(str(p) for p in self.additional)]
         if self.routes:
             cmd += ["--route-files", ",".join(str(p) for p in self.routes)]
+        if self.gui:  # run at once, and close the window with the simulation
+            cmd += GUI_OPTIONS
         return cmd + list(self.extra)
+
+
+GUI_OPTIONS = ["--start", "true", "--quit-on-end", "true"]
+
+
+def display_missing(environ: Mapping[str, str], platform: str) -> str | None:
+    """Why sumo-gui could not open its window here, or None. sumo-gui draws through X11 (FOX) on
+    Linux and macOS (XQuartz sets DISPLAY), so without DISPLAY it would fail once started."""
+    if platform == "win32" or environ.get("DISPLAY"):
+        return None
+    return (
+        "--gui needs a display, and DISPLAY is not set (sumo-gui opens an X11 window): run on a "
+        "desktop or with X forwarding, or leave out --gui and watch with `behave animate`"
+    )
+
+
+def check_display() -> None:
+    """BehaveError before anything runs if sumo-gui could not show a window."""
+    reason = display_missing(os.environ, sys.platform)
+    if reason is not None:
+        raise BehaveError(reason)
 
 
 @dataclass(frozen=True)
@@ -144,14 +170,14 @@ class SumoSim:
     a second raises BehaveError until the first is closed (or garbage collected, which closes it)."""
 
     def __init__(self, options: SimOptions) -> None:
-        import libsumo  # deferred: importing libsumo is slow and prints nothing useful at import
-
+        libsumo = sumo_api(options.gui)
         _claim(self)
         self._sumo = libsumo
         self._fast = fast_vehicle_calls(libsumo)
         self.options = options
         try:
-            libsumo.start(options.command())
+            with contextlib.redirect_stdout(sys.stderr):  # TraCI prints its connection attempts
+                libsumo.start(options.command(), **({"stdout": sys.stderr} if options.gui else {}))
         except Exception as exc:  # libsumo raises its own TraCIException/FatalSumoError types
             _release(self)
             raise sumo_error(exc, options, "could not start") from None
@@ -292,6 +318,14 @@ class SumoSim:
         """SUMO's driver keeps `vid` in its lane: it follows and never changes lanes."""
         self._sumo.vehicle.setLaneChangeMode(vid, 0)
 
+    def hold_speed(self, ids: Sequence[str], speed: float) -> None:
+        """SUMO's drivers of `ids` drive at `speed` (braking as hard as their vType may to reach it)
+        and keep their lanes; a negative speed gives them back their own speed and lane choice."""
+        v = self._sumo.vehicle
+        for vid in ids:
+            v.setSpeed(vid, speed)
+            v.setLaneChangeMode(vid, SUMO_LANE_CHANGE_MODE if speed < 0 else 0)
+
     def set_speed_factor(self, vid: str, factor: float) -> None:
         self._sumo.vehicle.setSpeedFactor(vid, factor)
 
@@ -374,6 +408,19 @@ class SumoSim:
 
 FAST_CALLS = ("getPosition", "getDistance", "getLaneID", "getLanePosition", "getLateralLanePosition",
               "getSpeed", "setSpeed", "changeSublane")  # fmt: skip
+
+
+def sumo_api(gui: bool) -> ModuleType:
+    """libsumo (SUMO inside this process), or for sumo-gui TraCI: the same calls over a socket to a
+    sumo-gui process. libsumo's own GUI (the wheel has one) hung in `close` after runs with vehicles
+    (SUMO 1.28), and a GUI in its own process cannot take behave down with it."""
+    if gui:
+        import traci
+
+        return traci
+    import libsumo  # deferred: importing libsumo is slow and prints nothing useful at import
+
+    return libsumo
 
 
 def fast_vehicle_calls(libsumo: ModuleType) -> SimpleNamespace:

@@ -12,6 +12,8 @@ behaviour id and their desired speed.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from behaviors.env_core import (
@@ -31,8 +33,10 @@ from behaviors.rewards import NO_PROGRESS_SECONDS, TrafficStep, TrafficWeights, 
 from behaviors.sim import SimOptions, SumoSim
 from sumo_scenarios import Scenario, get_scenario, route_edges, training_roads
 
-DESIRED_SPEED = {0.0: (0.72, 0.90), 1.0: (0.92, 1.0)}
-"""Desired speed as a fraction of the limit, drawn per agent: keepers (0) and overtakers (1)."""
+DESIRED_SPEED = {0.0: (0.85, 1.0), 1.0: (0.95, 1.0)}
+"""Desired speed as a fraction of the limit, drawn per agent: keepers (0) and overtakers (1). Drivers
+want about the limit (SUMO's cars: speed factor 1 +- 0.1); keepers that wanted 72-90% of it cut a
+road's capacity by 13% at 20 cars per lane-km, the slowest setting the pace of whole lanes."""
 SLOW_SHARE = 0.25
 """Share of SUMO's cars that drive slowly (speed factor 0.55-0.75, trucks and cautious drivers)."""
 SLOW_FACTOR = (0.55, 0.75)
@@ -49,6 +53,17 @@ CRAWL_EPISODES = 0.5
 """Share of `roads+queues` episodes with a queue crawling in the slow lane while the other lanes
 flow, as before an exit or a merge. Without it the policy never met such a lane in training and
 braked beside a queue as if its first car were the agent's leader (README, Known limitations)."""
+STOP_EPISODES = 0.5
+"""Share of episodes in which the traffic ahead of one agent stops in every lane of its edge and
+later moves on, so that agents queue and pull away again. Without it the policy never met a standing
+start and held its car on the brake while the car-following law under it would pull away (a queue
+discharged at 990 veh/h/lane, against 2,070 with the law alone)."""
+STOP_AFTER_S = (5.0, 40.0)
+"""When the traffic stops, seconds into the episode."""
+STOP_FOR_S = (5.0, 30.0)
+"""How long it stands."""
+STOP_REACH = (30.0, 250.0)
+"""m ahead of the agent: the nearest SUMO car in each lane in this range stops."""
 CRAWL_CARS = (4, 12)
 CRAWL_SPEED = (0.0, 0.2)
 """Speed of the queue as a share of the limit: from standing to about 25 km/h on a motorway."""
@@ -85,6 +100,41 @@ def queue_places(
     steps = car_length + min_gap + rng.uniform(*CRAWL_GAP, cars)
     fronts = head - np.concatenate(([0.0], np.cumsum(steps[:-1])))
     return fronts[fronts >= car_length + 0.5]
+
+
+@dataclass(frozen=True)
+class StopAndGo:
+    """The traffic ahead of `agent` stops at step `stop` (or as soon after as there is traffic ahead
+    on its edge) and moves on at step `go`."""
+
+    agent: str
+    stop: int
+    go: int
+
+
+def plan_stop_and_go(agents: list[str], step_length: float, rng: np.random.Generator) -> StopAndGo | None:
+    """This episode's stop-and-go event, or None (1 - STOP_EPISODES of the episodes)."""
+    if not agents or rng.random() >= STOP_EPISODES:
+        return None
+    stop = rng.uniform(*STOP_AFTER_S)
+    go = stop + rng.uniform(*STOP_FOR_S)
+    agent = agents[int(rng.integers(len(agents)))]
+    return StopAndGo(agent, round(stop / step_length), round(go / step_length))
+
+
+def cars_ahead_per_lane(
+    lane_ids: list[str], lane_pos: np.ndarray, own_lane: str, own_pos: float, reach: tuple[float, float]
+) -> list[int]:
+    """Indices of the nearest car in each lane of `own_lane`'s edge whose position lies `reach`
+    (near, far) metres ahead of `own_pos`."""
+    edge = own_lane.rpartition("_")[0]
+    nearest: dict[str, tuple[float, int]] = {}
+    for k, (lane, pos) in enumerate(zip(lane_ids, lane_pos.tolist(), strict=True)):
+        ahead = pos - own_pos
+        in_reach = lane.rpartition("_")[0] == edge and reach[0] <= ahead <= reach[1]
+        if in_reach and (lane not in nearest or ahead < nearest[lane][0]):
+            nearest[lane] = (ahead, k)
+    return sorted(k for _, k in nearest.values())
 
 
 class TrafficEnv(BehaveEnv):
@@ -155,6 +205,8 @@ class TrafficEnv(BehaveEnv):
             sim.step()
         self._insert_agents(routes, weights)
         self.steps = 0
+        self.stop_and_go = plan_stop_and_go(self.agents, cfg.step_length, rng)
+        self.stopped: list[str] = []
         vehicles = sim.read_vehicles()
         self.live_obs = self.fleet.sense(sim, vehicles, True)
         return self.live_obs
@@ -172,6 +224,26 @@ class TrafficEnv(BehaveEnv):
             sim.add_vehicle(vid, routes[k], BACKGROUND_TYPE, lane=0, pos=float(front), speed=float(speed))
             sim.set_max_speed(vid, max(float(speed), 0.1))
             sim.hold_lane(vid)
+
+    def _stop_and_go(self, sim: SumoSim) -> None:
+        """Stop the traffic ahead of the event's agent, or let it move on, when the event says."""
+        event = self.stop_and_go
+        if event is None:
+            return
+        waiting = event.stop <= self.steps < event.go and not self.stopped  # the agent may be near
+        if waiting and event.agent in self.agents:  # its edge's end: then it is tried again next step
+            (own_lane,), (own_pos,) = sim.read_lanes([event.agent]), sim.read_lane_places([event.agent])[0]
+            cars = [v for v in sim.vehicle_ids() if v.startswith("traffic_")]
+            if not own_lane.startswith(":") and cars:
+                rows = cars_ahead_per_lane(
+                    sim.read_lanes(cars), sim.read_lane_places(cars)[0], own_lane, own_pos, STOP_REACH
+                )
+                self.stopped = [cars[k] for k in rows]
+                sim.hold_speed(self.stopped, 0.0)
+        elif self.steps == event.go:
+            present = set(sim.vehicle_ids())
+            sim.hold_speed([v for v in self.stopped if v in present], -1.0)
+            self.stopped = []
 
     def _insert_agents(self, routes: list[str], weights: np.ndarray) -> None:
         """Agents at free places of the road, at the speed SUMO finds safe there."""
@@ -210,6 +282,7 @@ class TrafficEnv(BehaveEnv):
         assert fleet.rows.frame is not None
         desired = fleet.own.desired_fraction * fleet.rows.frame.speed_limit
         before_speed, before_lateral = fleet.rows.speed.copy(), fleet.own.lateral_speed.copy()
+        self._stop_and_go(sim)
         actuation = fleet.act(sim, actions)
         assert actuation.lateral_speed is not None
         contact, vehicles, present, next_obs = self._advance(sim, True)

@@ -4,7 +4,8 @@ Runs `behave populate` (through the library) in light and dense traffic on the b
 the curved motorway no policy trains on, with the shield on (as users run it) and off (the bare
 policy), sums the agent-hours per shield setting, and measures every run's FCD with `behave report`'s
 realism measures plus two of its own: the share of time a car's body straddles a lane line, and the
-overtakers' share of time in the rightmost lane while that lane is free beside them.
+overtakers' share of time in the rightmost through lane while that lane is free beside them (a
+weave's auxiliary lane from an on-ramp to an exit is not a through lane).
 
     python benchmarks/dense_bars.py [--policy P] [--seed 0] [--quick]
 
@@ -27,6 +28,7 @@ from behaviors.export import read_fcd
 from behaviors.populate import DEFAULT_POLICY, PopulateConfig, populate
 from behaviors.realism import Lanes, group_names, measure, read_agents, read_lanes
 from sumo_scenarios import get_scenario
+from sumo_scenarios.net import read_net
 
 CAR_WIDTH = 1.8
 """m: the behave vTypes' width; a body wider than its lane's room less this touches a line."""
@@ -85,11 +87,32 @@ def straddling(df: pd.DataFrame, lanes: Lanes) -> pd.Series:
     return over[keep].groupby(groups[keep]).mean()
 
 
-def rightmost_while_free(df: pd.DataFrame, lanes: Lanes, group: str) -> float:
-    """Share of a group's settled records in the rightmost lane, among those where the rightmost lane
-    of the same edge holds nobody else from FREE_BEHIND behind to FREE_AHEAD ahead of the car."""
+def through_ranks(net: Path, lanes: Lanes) -> dict[str, int]:
+    """Each car lane's rank from the outer side among its edge's through lanes, -1 for the others: a
+    through lane goes on into a road of two lanes or more (or its edge leads nowhere: the road's
+    end). An auxiliary lane from an on-ramp to an exit, a lane into an exit and a dropped lane are
+    not through lanes, and keeping right does not mean moving into them."""
+    tables = read_net(net)
+    lanes_of = {edge: len(specs) for edge, specs, normal in tables.edges if normal}
+    onward = {src for src, _ in tables.car_links}
+    through = {a for a, b in tables.lane_links if lanes_of.get(b.rpartition("_")[0], 0) >= 2}
+    out: dict[str, int] = {}
+    for edge, specs, normal in tables.edges:
+        if not normal:
+            continue
+        ids = sorted((spec[0] for spec in specs), key=lambda lane: lanes.rank.get(lane, 0))
+        kept = [lane for lane in ids if lane in through or edge not in onward]
+        out.update(dict.fromkeys(ids, -1))
+        out.update({lane: k for k, lane in enumerate(kept)})
+    return out
+
+
+def rightmost_while_free(df: pd.DataFrame, ranks: dict[str, int], group: str) -> float:
+    """Share of a group's settled records in the rightmost through lane (`through_ranks`), among
+    those where that lane of the same edge holds nobody else from FREE_BEHIND behind to FREE_AHEAD
+    ahead of the car."""
     lane = df["lane"].astype(str)
-    rank = lane.map(lanes.rank).astype(float)
+    rank = lane.map(ranks).astype(float)
     edge = lane.str.rpartition("_")[0]
     settled = df["time"] - df.groupby("id")["time"].transform("min") >= SKIP_S
     mine = (group_names(df["id"], df["type"], "type") == group) & settled & ~lane.str.startswith(":")
@@ -131,7 +154,7 @@ def run(setting: Setting, policy: Path, seed: int, shield: bool, out: Path) -> d
         "agents_speed": df.loc[df["type"].isin(["behave_keeper", "behave_overtaker"]), "speed"].mean(),
         "sumo_speed": df.loc[~df["type"].astype(str).str.startswith("behave_k")
                              & ~df["type"].astype(str).str.startswith("behave_o"), "speed"].mean(),
-        "overtakers_right_free": rightmost_while_free(df, lanes, OVERTAKERS),
+        "overtakers_right_free": rightmost_while_free(df, through_ranks(config.net, lanes), OVERTAKERS),
     }  # fmt: skip
     table, strad = report.table, straddling(df, lanes)
     for group in (KEEPERS, OVERTAKERS, SUMO):
@@ -267,8 +290,10 @@ def main() -> None:
             "each setting once with the shield on and once off, agents re-inserted as they leave "
             "(`--keep-count`); measured on populate's FCD by `behave report`'s realism measures "
             "(each car's first 10 s left out), plus the share of time a body reaches over a lane line "
-            "and the overtakers' share of time in the rightmost lane among the moments that lane is "
-            f"free beside them (nobody from {FREE_BEHIND:.0f} m behind to {FREE_AHEAD:.0f} m ahead). "
+            "and the overtakers' share of time in the rightmost through lane (an auxiliary lane from "
+            "an on-ramp to an exit, a lane into an exit or a dropped lane is none) among the moments "
+            f"that lane is free beside them (nobody from {FREE_BEHIND:.0f} m behind to "
+            f"{FREE_AHEAD:.0f} m ahead). "
             "highway: the bundled 3-lane, 3 km straight (9 lane-km) with behave's background cars; "
             "motorway: the curved 3-lane motorway with an on-ramp, a weave and an exit that no "
             "policy trains on, with its own flows.\n\n" + text + "\n"

@@ -8,9 +8,10 @@ density and speed are Edie's over the whole road (every multi-lane edge) and the
 (behaviors/flow.py). Roads:
 
 * `highway`: the bundled straight 3-lane highway, 3 km, 3.5 m lanes;
-* `motorway4`: a curved 4-lane motorway no policy trained on (netconvert from plain XML here):
-  an on-ramp joining through an acceleration lane that ends, then the right lane dropping
-  (4 -> 3 lanes);
+* `curved4`: a curved 4-lane motorway no policy trained on, 3 km, 3.75 m lanes, no bottleneck
+  (netconvert from plain XML here);
+* `motorway4`: a curved 4-lane motorway with a bottleneck: an on-ramp joining through an
+  acceleration lane, then the right lane dropping (4 -> 3 lanes);
 * `carriageway2`: a curved 2-lane carriageway of 3.2 m lanes (SUMO's default width).
 
 Queue discharge: on the bundled highway a car stands in each lane (a SUMO car with a stop) until
@@ -89,6 +90,17 @@ def build_motorway4(folder: Path) -> Path:
     return run_netconvert(folder, "motorway4", lefthand=False)
 
 
+def build_curved4(folder: Path) -> Path:
+    """Curved 4 lanes of 3.75 m, 3 km, no bottleneck: the capacity bar's motorway."""
+    c = Chain()
+    c.way("k0", 4, [(600.0, 0.0), (500.0, 900.0)], 3.75)
+    c.way("k1", 4, [(500.0, -800.0), (700.0, 0.0)], 3.75)
+    c.way("k2", 4, [(700.0, 0.0)], 3.75)
+    folder.mkdir(parents=True, exist_ok=True)
+    write_plain(folder, "curved4", c.ways, [])
+    return run_netconvert(folder, "curved4", lefthand=False)
+
+
 def build_carriageway2(folder: Path) -> Path:
     """Curved 2 lanes of SUMO's default 3.2 m, 3 km."""
     c = Chain()
@@ -103,6 +115,7 @@ def build_carriageway2(folder: Path) -> Path:
 def roads(folder: Path) -> dict[str, Path]:
     return {
         "highway": get_scenario("highway").net,
+        "curved4": build_curved4(folder / "curved4"),
         "motorway4": build_motorway4(folder / "motorway4"),
         "carriageway2": build_carriageway2(folder / "carriageway2"),
     }
@@ -348,11 +361,13 @@ def document(
         "or fail to get in. Fleets: SUMO's cars alone (vType `behave_background`, Krauss + SL2015), "
         "50% learned and 100% learned (keepers:overtakers 1:1). `agents stood >= 30 s`: agents "
         "that stood (< 0.1 m/s) 30 s or more at a time in the measured window; `motorway4` has "
-        "a lane drop (a bottleneck), so its standing agents are not held against the bar. Bars "
+        "a lane drop (a bottleneck), so its standing agents are not held against the bar, and its "
+        "flow is held against SUMO's through the same bottleneck. Bars "
         "(issue 23): at 20 veh/lane-km a learned fleet's flow >= 90% of SUMO alone; at 27 >= "
         "1,800 veh/h/lane; no agent standing 30 s where no bottleneck stops traffic.",
         "",
-        "Roads: `highway` the bundled straight 3-lane, 3 km, 3.5 m lanes; `motorway4` a curved "
+        "Roads: `highway` the bundled straight 3-lane, 3 km, 3.5 m lanes; `curved4` a curved 4-lane "
+        "motorway (3.75 m, 3 km) no policy trained on, without a bottleneck; `motorway4` a curved "
         "4-lane motorway (3.75 m) no policy trained on, an on-ramp with an acceleration lane, then "
         "a lane drop 4 -> 3 (netconvert from plain XML in `benchmarks/flow.py`; the on-ramp carries "
         "no demand of its own: populate routes cars over multi-lane edges only); `carriageway2` a "

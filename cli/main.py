@@ -14,7 +14,7 @@ from typing import Annotated, NoReturn
 import typer
 from typer import _click as click
 
-from behaviors.cli import evaluate, export, policy, populate, report, scenario, sweep, train
+from behaviors.cli import animate, evaluate, export, policy, populate, report, scenario, sweep, train
 from behaviors.cli.group import QuickHelpGroup
 from behaviors.errors import BehaveError
 
@@ -32,6 +32,7 @@ app.command("train")(train.train)
 app.command("populate")(populate.populate_command)
 app.command("export")(export.export_command)
 app.command("plot")(export.plot_command)
+app.command("animate")(animate.animate_command)
 app.command("evaluate")(evaluate.evaluate_command)
 app.command("report")(report.report_command)
 app.command("sweep")(sweep.sweep_command)

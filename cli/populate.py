@@ -2,22 +2,24 @@
 
 from __future__ import annotations
 
+import sys
+from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 import behaviors
 from behaviors.cli.checks import NET, NON_NEGATIVE, POSITIVE, SEED
+from behaviors.cli.progress import QUIET, VERBOSE, make_progress, verbosity
 from behaviors.files import check_output_path
 from sumo_scenarios import get_scenario
 
 if TYPE_CHECKING:
-    from behaviors.populate import PopulateConfig  # torch: only when run
+    from behaviors.populate import PopulateConfig, PopulateSummary  # torch: only when run
 
 DEFAULTS = SimpleNamespace(
     net=get_scenario("highway").net, overtakers=4, keepers=4, background=20, duration=180.0,
@@ -126,44 +128,81 @@ def populate_command(
             "the table",
         ),
     ] = False,
+    gui: Annotated[
+        bool,
+        typer.Option(
+            help="watch the run in sumo-gui (the same simulation; keepers green, overtakers orange, SUMO's "
+            "cars grey); needs a display"
+        ),
+    ] = False,
+    quiet: QUIET = False,
+    verbose: VERBOSE = False,
 ) -> None:
-    """Drive learned keepers and overtakers (one batched policy call per step) and write SUMO FCD."""
-    from behaviors.agents_table import agents_path
-    from behaviors.populate import config_from, populate  # torch: only when run
+    """Drive learned keepers and overtakers (one batched policy call per step) and write SUMO FCD.
 
+    Ctrl-C stops after the step under way and keeps what was simulated (exit code 130)."""
+    from behaviors.agents_table import agents_path
+    from behaviors.populate import PopulateInterrupted, config_from, populate
+
+    level = verbosity(quiet, verbose)
     config = config_from(
         sumocfg, net=net, overtakers=overtakers, keepers=keepers, policy=policy, background=background,
         routes=routes, duration=duration, step_length=step_length, seed=seed, fcd=fcd, geo=geo,
         keep_count=keep_count, shield=shield, precision=precision, share=share,
-        overtaker_fraction=overtaker_fraction,
+        overtaker_fraction=overtaker_fraction, gui=gui,
     )  # fmt: skip
-    columns = (TextColumn("simulating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
-               TimeElapsedColumn())  # fmt: skip
-    progress = Progress(*columns, transient=True, console=Console(stderr=json_out))
-    task = progress.add_task("populate", total=config.duration)
-
-    def advance(simulated: float) -> None:
-        if not progress.live.is_started:  # started only once the set-up passed its checks
-            progress.start()
-        progress.update(task, completed=simulated)
-
     if plot is not None:  # found unwritable now, not after the whole run
         check_output_path(plot)
+    progress = make_progress("simulating", config.duration, "s", level=level, stderr=json_out)
     try:
-        summary = populate(
-            config, on_step=advance, on_status=lambda text: typer.echo(f"set-up: {text}", err=True)
-        )
+        summary = populate(config, on_step=progress.update, on_status=say(level, "set-up: "))
+    except PopulateInterrupted as stop:
+        summary = stop.summary
     finally:
-        if progress.live.is_started:
-            progress.stop()
+        progress.close()
     if json_out:
         import json
 
         summary_dict = {**summary.as_dict(), "fcd": str(fcd), "agents_csv": str(agents_path(fcd))}
-        typer.echo(json.dumps({**summary_dict, "net": str(config.net), "seed": seed}))
-    table = Table(title=f"behave populate: {config.net.name}, seed {seed}")
+        summary_dict.update({"cut_short": summary.cut_short, "net": str(config.net), "seed": seed})
+        typer.echo(json.dumps(summary_dict))
+    elif level >= 0:
+        Console().print(summary_table(summary, f"behave populate: {config.net.name}, seed {seed}"))
+    if level >= 0:
+        typer.echo(f"FCD written to {fcd}", err=json_out)
+        typer.echo(f"per-agent table written to {agents_path(fcd)}", err=json_out)
+    if level > 0:
+        for name, seconds in summary.phases.items():
+            typer.echo(f"phase {name}: {seconds:,.2f} s of {summary.wall_s:,.2f} s wall", err=True)
+    if plot is not None:
+        from behaviors.export import read_fcd
+        from behaviors.plot import plot_fcd
+
+        plot_fcd(read_fcd(fcd, geo=geo), plot, title=plot_title(config))
+        if level >= 0:
+            typer.echo(f"plot written to {plot}", err=json_out)
+    if summary.cut_short:
+        print(
+            f"behave: interrupted after {summary.simulated_s:g} of {config.duration:g} simulated s; "
+            f"the FCD and agents table hold the run up to then (cut short)",
+            file=sys.stderr,
+        )
+        sys.exit(130)
+
+
+def say(level: int, prefix: str) -> Callable[[str], None] | None:
+    """Status lines on stderr, unless quiet."""
+    if level < 0:
+        return None
+    return lambda text: typer.echo(f"{prefix}{text}", err=True)
+
+
+def summary_table(summary: PopulateSummary, title: str) -> Table:
+    table = Table(title=title)
     table.add_column("metric")
     table.add_column("value", justify="right")
+    if summary.cut_short:
+        table.add_row("cut short (Ctrl-C)", f"after {summary.simulated_s:g} s")
     for key, value in summary.as_dict().items():
         text = f"{value:,.2f}" if isinstance(value, float) else f"{value:,}"
         if key.endswith("mean_speed"):
@@ -171,20 +210,7 @@ def populate_command(
         if key.endswith("longest_standstill_s"):
             text = f"{value:.1f} s"
         table.add_row(key.replace("_", " "), text)
-    if not json_out:
-        Console().print(table)
-    typer.echo(f"FCD written to {fcd}", err=json_out)
-    typer.echo(f"per-agent table written to {agents_path(fcd)}", err=json_out)
-    if plot is not None:
-        from behaviors.export import read_fcd
-        from behaviors.plot import plot_fcd
-
-        plot_fcd(
-            read_fcd(fcd, geo=geo),
-            plot,
-            title=plot_title(config),
-        )
-        typer.echo(f"plot written to {plot}", err=json_out)
+    return table
 
 
 def plot_title(config: PopulateConfig) -> str:

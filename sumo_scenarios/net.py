@@ -31,6 +31,7 @@ class NetTables:
     edges: list[tuple[str, list[LaneSpec], bool]] = field(default_factory=list)  # id, car lanes, normal?
     links: dict[tuple[str, str], str] = field(default_factory=dict)  # normal -> normal: first via lane
     car_links: set[tuple[str, str]] = field(default_factory=set)  # ... that a passenger car may take
+    lane_links: set[tuple[str, str]] = field(default_factory=set)  # lane -> lane of those car links
     lefthand: bool = False
 
 
@@ -85,6 +86,7 @@ def add_connection(out: NetTables, elem: ET.Element, normal: set[str], car_lane:
     ends = (f"{src}_{elem.get('fromLane')}", f"{dst}_{elem.get('toLane')}")
     if all(lane in car_lane for lane in ends) and allows_car(elem.get("allow"), elem.get("disallow")):
         out.car_links.add((src, dst))
+        out.lane_links.add(ends)
 
 
 def lane_widths(path: Path) -> dict[str, float]:

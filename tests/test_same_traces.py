@@ -75,14 +75,15 @@ def sha256(path: Path) -> str:
 
 
 RECORDED = {
-    "highway_traffic": "f262a56fdbf23797b78a454d827006523d96c811b7d4c81645cc04a17d9bc7d6",
+    "highway_traffic": "a0392c9ddb5e179db3a784947dd93d515724c9b1414a0a1673444a8e99f62950",
     "highway_paper": "c71e6c70a84e8053750d5bd1770a37bf2f5095115cadc1eb75e33580b00da5d3",
-    "share_lanedrop": "6d84f31fd8fd0730bff6853d8fae119678dd3f58241a1cdc472575b8f924bac1",
+    "share_lanedrop": "f89fb241c186bbb7c738534a8236a99456a32521ebdddbf0f07b850a6a81d479",
 }
 """sha256 of each case's FCD (csv), recorded on the code before the driver became one object (the
 traffic case again when lane changes began to wait for an acceptable gap, and both traffic-driver
-cases when the driver began to keep the rules of the road: a change of behaviour on purpose is a
-new recording, in the same commit)."""
+cases when the driver began to keep the rules of the road, and again when agents wanted speeds
+nearer the limit, began no lane change inside a junction and let cars in from an ending lane: a
+change of behaviour on purpose is a new recording, in the same commit)."""
 
 
 def run_case(case: str, tmp_path: Path) -> Path:

@@ -18,6 +18,8 @@ from behaviors.actuation import (
     actuate_lanes,
     following_accel,
     gap_acceptable,
+    lane_intent,
+    letting_in,
 )
 from behaviors.control import Fleet
 from behaviors.drivers import TrafficDriver, make_driver
@@ -399,6 +401,31 @@ def test_a_change_is_given_up_for_a_car_that_comes_alongside():
     assert set(given_up[:, 4]) == {0}
 
 
+def test_a_car_ahead_in_a_lane_that_ends_is_let_in_and_one_alongside_is_passed():
+    ruled = LaneDriving()
+    ends = np.array([[2000.0, 2000.0, 120.0]])  # the slow-side lane ends 120 m on, the own lane leads on
+    speed, desired = np.array([6.0]), np.array([30.0])
+    waiting = leaders_of(slow_lead=(4, 6.0, 0.0))  # 6 m ahead, standing at the end of its lane
+    brake = letting_in(speed, desired, *waiting, ends, ruled)
+    assert -ruled.safe_decel <= brake[0] < -0.5  # it holds back to leave the gap
+    alongside = leaders_of(slow_lead=(4, 1.0, 0.0))  # too near to leave it a gap: passed
+    assert letting_in(speed, desired, *alongside, ends, ruled)[0] == np.inf
+    through = np.array([[2000.0, 2000.0, 2000.0]])  # the slow-side lane leads on: nobody waits to merge
+    assert letting_in(speed, desired, *waiting, through, ruled)[0] == np.inf
+
+
+def test_no_lane_change_begins_inside_a_junction_but_one_under_way_goes_on():
+    ruled = LaneDriving()
+    steer, lanes = np.array([1.0, 1.0]), np.array([1, 1])
+    changing, offset, width = np.array([0, 1]), np.array([0.0, 0.5]), np.array([3.5, 3.5])
+    ok = np.ones((2, 2), bool)
+    free = np.zeros(2, bool)
+    open_road = lane_intent(steer, changing, offset, width, lanes, lanes, ok, ruled, free, np.ones(2, bool))
+    junction = lane_intent(steer, changing, offset, width, lanes, lanes, ok, ruled, free, np.ones(2, bool),
+                           may_begin=np.zeros(2, bool))  # fmt: skip
+    assert open_road.tolist() == [1, 1] and junction.tolist() == [0, 1]
+
+
 def test_car_following_settles_at_a_human_headway_and_stops_behind_a_standing_car():
     law = CarFollowing()
     speed = np.array([25.0])
@@ -536,6 +563,39 @@ def test_roads_with_queues_have_a_queue_crawling_in_the_slow_lane_while_the_othe
         assert (vehicles.speed[queue] <= CRAWL_SPEED[1] * limit + 1.0).all()
         assert {sim._sumo.vehicle.getLaneIndex(vid) for vid in np.array(vehicles.ids)[queue]} == {0}
         assert np.median(vehicles.speed[~queue]) > 2 * CRAWL_SPEED[1] * limit  # the other lanes flow
+    finally:
+        env.close()
+
+
+def test_the_cars_stopped_are_the_nearest_ahead_in_each_lane_of_the_own_edge():
+    lanes = ["e1_0", "e1_1", "e1_1", "e1_2", "e2_0", "e1_0", "e1_2"]
+    pos = np.array([150.0, 140.0, 120.0, 90.0, 130.0, 300.0, 105.0])
+    # own place e1 at 100 m: e1_0's car at 150, e1_1's nearer one at 120; e1_2's at 105 is too near,
+    # the one at 90 behind; e2 is another edge and e1_0's car at 300 beyond reach
+    assert traffic_env.cars_ahead_per_lane(lanes, pos, "e1_1", 100.0, (10.0, 150.0)) == [0, 2]
+
+
+def test_stop_and_go_episodes_stop_the_traffic_ahead_of_an_agent_and_let_it_move_on(monkeypatch):
+    monkeypatch.setattr(traffic_env, "STOP_EPISODES", 1.0)
+    monkeypatch.setattr(traffic_env, "STOP_AFTER_S", (1.0, 1.0))
+    monkeypatch.setattr(traffic_env, "STOP_FOR_S", (12.0, 12.0))
+    env = make_env("ring", behaviour="multi", overtakers=2, keepers=2, driver="traffic", seed=2,
+                   max_steps=120, traffic_density=(25.0, 25.0))  # fmt: skip
+    try:
+        env.reset_arrays(seed=2)
+        event = env.stop_and_go
+        assert event is not None and (event.stop, event.go) == (5, 65)
+        stopped, speeds = [], {}
+        for step in range(1, 100):
+            if not env.agents:
+                break
+            env.step_arrays(np.tile([0.0, 0.5, 0.0], (len(env.agents), 1)).astype(np.float32))
+            stopped = stopped or list(env.stopped)
+            if step in (60, 99):
+                vehicles = env.sim.read_vehicles()
+                speeds[step] = [vehicles.speed[vehicles.row[v]] for v in stopped if v in vehicles.row]
+        assert len(speeds[60]) >= 2 and max(speeds[60]) < 0.1  # the traffic ahead stands
+        assert min(speeds[99]) > 3.0 and env.stopped == []  # and has moved on
     finally:
         env.close()
 

@@ -1,0 +1,383 @@
+"""Top-down animation of an FCD file (`behave animate`): the road from the net, every vehicle as a
+box, learned cars coloured by behaviour as `behave plot` colours them, a time stamp per frame.
+
+One frame per `every` seconds of FCD time, showing each vehicle's last record at or before that
+instant. GIF goes through Pillow (frames kept as 8-bit palette images, a quarter of RGBA's
+memory); MP4 through ffmpeg, where matplotlib finds one. Written to a temp file and renamed.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from behaviors.errors import BehaveError
+from behaviors.files import atomic_path, check_output_path
+
+if TYPE_CHECKING:
+    import pandas as pd
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+ANIMATION_SUFFIXES = (".gif", ".mp4")
+CAR_LENGTH, CAR_WIDTH = 5.0, 1.8
+"""m: FCD records no vehicle sizes; behave's cars (and most passenger cars) are about this."""
+FIGURE_WIDTH_IN, DPI = 8.0, 100
+MARGIN_M = 10.0
+NET_NAME = re.compile(r"<!-- behave populate: net=(\S+)")
+SUMO_NET_FILE = re.compile(r'<net-file value="([^"]+)"')
+ROAD_COLOUR, MARKING_COLOUR = "#d9d9d9", "#555555"
+
+
+@dataclass(frozen=True)
+class AnimateOptions:
+    every: float = 1.0  # FCD seconds per frame
+    fps: int = 10  # frames per second of playback
+    follow: str | None = None  # vehicle id the view follows
+    window: float = 200.0  # m: the width of the followed view
+    net: Path | None = None  # None: the net the FCD names, if it can be found
+    geo: bool = False  # the FCD holds lon/lat
+
+    def validate(self) -> None:
+        for name in ("every", "fps", "window"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise BehaveError(f"--{name} must be a finite number > 0, got {value}")
+
+
+def check_animation_output(out: Path) -> None:
+    """BehaveError now, before the FCD is read, if `out` cannot be written as an animation."""
+    suffix = out.suffix.lower()
+    if suffix not in ANIMATION_SUFFIXES:
+        raise BehaveError(f"animation output must end in {' or '.join(ANIMATION_SUFFIXES)}: {out}")
+    if suffix == ".mp4":
+        from matplotlib.animation import FFMpegWriter
+
+        if not FFMpegWriter.isAvailable():
+            raise BehaveError(f"cannot write {out}: MP4 needs ffmpeg, which is not on PATH (write a .gif)")
+    check_output_path(out)
+
+
+def frame_times(first: float, last: float, every: float) -> np.ndarray:
+    """The instants drawn: `first`, then one per `every` seconds up to `last` (a record's rounding
+    does not drop the last frame)."""
+    count = math.floor((last - first) / every + 1e-6) + 1
+    return first + every * np.arange(max(count, 1))
+
+
+def step_at(step_times: np.ndarray, instants: np.ndarray) -> np.ndarray:
+    """Index of the last FCD step at or before each instant (steps sorted, instants >= the first)."""
+    return np.searchsorted(step_times, instants + 1e-6, side="right") - 1
+
+
+def time_label(t: float, every: float) -> str:
+    """`t = 12.4 s`, with as many decimals as `every` needs, so no two frames read the same."""
+    decimals = max(0, math.ceil(-math.log10(every) - 1e-9))
+    return f"t = {t:.{decimals}f} s"
+
+
+def car_boxes(
+    x: np.ndarray,
+    y: np.ndarray,
+    angle: np.ndarray,
+    length: float,
+    width: float,
+    scale: tuple[float, float] = (1.0, 1.0),
+) -> np.ndarray:
+    """[N, 4, 2] corners of each car from SUMO's front-bumper position and angle (degrees clockwise
+    from north); `scale` turns the metre offsets into the coordinates' units (degrees of lon/lat)."""
+    heading = np.radians(angle)
+    ahead = np.stack([np.sin(heading), np.cos(heading)], axis=1)
+    right = np.stack([np.cos(heading), -np.sin(heading)], axis=1)
+    half = width / 2 * right
+    offsets = np.stack([half, -half, -half - length * ahead, half - length * ahead], axis=1)
+    return np.stack([x, y], axis=1)[:, None, :] + offsets * np.asarray(scale)
+
+
+def follow_centres(times: np.ndarray, xy: np.ndarray, instants: np.ndarray) -> np.ndarray:
+    """[F, 2] the followed car's position at each instant; before it enters the view waits where it
+    enters, after it leaves the view stays where it left."""
+    return np.stack([np.interp(instants, times, xy[:, 0]), np.interp(instants, times, xy[:, 1])], axis=1)
+
+
+def fit_view(
+    low: np.ndarray, high: np.ndarray, x_scale: float = 1.0, ratios: tuple[float, float] = (0.3, 1.0)
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Limits holding [low, high], widened about its centre to a height/width ratio within `ratios`
+    (a 3 km straight road still gets a strip of picture), and that ratio. `x_scale`: the length of
+    an x unit in y units (cos(latitude) for lon/lat)."""
+    width = max(float(high[0] - low[0]) * x_scale, 1e-9)
+    height = max(float(high[1] - low[1]), 1e-9)
+    ratio = float(np.clip(height / width, *ratios))
+    centre = (np.asarray(low, float) + np.asarray(high, float)) / 2
+    half = np.array([max(width, height / ratio) / x_scale, max(height, width * ratio)]) / 2
+    return centre - half, centre + half, ratio
+
+
+def named_net(fcd: Path) -> Path | None:
+    """The net an XML FCD names (behave's header or SUMO's option comment), where such a file
+    exists: as written, beside the FCD, or as a bundled scenario's net."""
+    if fcd.suffix.lower() != ".xml":
+        return None
+    with open(fcd, encoding="utf-8", errors="replace") as f:
+        head = f.read(65536).split("<fcd-export", 1)[0]
+    found = NET_NAME.search(head) or SUMO_NET_FILE.search(head)
+    if found is None:
+        return None
+    from sumo_scenarios import data_dir
+
+    name = Path(found[1])
+    candidates = [name, fcd.parent / name, *sorted(data_dir().glob(f"*/{name.name}"))]
+    return next((path for path in candidates if path.is_file()), None)
+
+
+def road_shapes(net: Path) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """(lane surfaces as polygons, lane markings between lanes, road edges) of a net's car lanes."""
+    from behaviors.geometry import offset_polyline
+    from sumo_scenarios.net import read_net
+
+    try:
+        tables = read_net(net)
+    except (OSError, ValueError, EOFError, SyntaxError) as err:  # ET.ParseError is a SyntaxError
+        raise BehaveError(f"{net} is not a SUMO net ({err})") from None
+    if not tables.edges:
+        raise BehaveError(f"{net} is not a SUMO net (no lanes a car may use)")
+    outer = 1.0 if tables.lefthand else -1.0  # lane 0's outer side: right, or left in left-hand nets
+    surfaces: list[np.ndarray] = []
+    markings: list[np.ndarray] = []
+    edges: list[np.ndarray] = []
+    for _, lanes, normal in tables.edges:
+        for k, (_, shape, width, _, _) in enumerate(lanes):
+            points = distinct_points(np.asarray(shape, float).reshape(-1, 2))
+            if len(points) < 2:
+                continue
+            inner_side = offset_polyline(points, -outer * width / 2)
+            outer_side = offset_polyline(points, outer * width / 2)
+            surfaces.append(np.concatenate([outer_side, inner_side[::-1]]))
+            if not normal:
+                continue
+            (edges if k == 0 else markings).append(outer_side)
+            if k == len(lanes) - 1:
+                edges.append(inner_side)
+    return surfaces, markings, edges
+
+
+def distinct_points(points: np.ndarray) -> np.ndarray:
+    """A polyline without repeated points (a zero-length segment has no direction to offset)."""
+    if len(points) < 2:
+        return points
+    keep = np.concatenate([[True], np.hypot(*np.diff(points, axis=0).T) > 1e-6])
+    return points[keep]
+
+
+def vehicle_colours(df: pd.DataFrame) -> tuple[np.ndarray, dict[str, str]]:
+    """Each record's colour by its own vType (an agent SUMO drives for a while keeps its colour; a
+    scenario car `--share` converted changes colour as it becomes an agent), and the legend."""
+    from behaviors.plot import GROUP_STYLES, SUMO_CAR
+    from behaviors.realism import group_names
+
+    groups = group_names(df["id"], df["type"], "type")
+    styles = {group: GROUP_STYLES.get(group, SUMO_CAR) for group in groups.unique()}
+    colours = groups.map(lambda group: styles[group][1]).to_numpy(dtype=object)
+    legend = dict(sorted({label: colour for label, colour in styles.values()}.items()))
+    return colours, legend
+
+
+def animate_fcd(
+    fcd: Path,
+    out: Path,
+    options: AnimateOptions,
+    on_frame: Callable[[int, int], None] | None = None,
+    on_status: Callable[[str], None] | None = None,
+) -> int:
+    """Draw the animation of `fcd` into `out` (.gif or .mp4); returns the number of frames."""
+    from behaviors.export import read_fcd
+
+    options.validate()
+    check_animation_output(out)
+    df = read_fcd(fcd, geo=options.geo)
+    xcol, ycol = ("lon", "lat") if "lon" in df.columns else ("x", "y")
+    df = df.dropna(subset=["time", xcol, ycol]).sort_values(["time", "id"], kind="stable")
+    if df.empty:
+        raise BehaveError(f"{fcd} has no vehicle records to animate")
+    net = options.net if options.net is not None else named_net(fcd)
+    if net is not None and not net.is_file():
+        raise BehaveError(f"net file not found: {net}")
+    if xcol == "lon" and net is not None:
+        net = None
+        _say(on_status, "the FCD holds lon/lat: lanes are drawn only for metres (x/y)")
+    elif net is None:
+        _say(on_status, "no net given and the FCD names none found here: lanes not drawn (give --net)")
+    times = df["time"].to_numpy()
+    steps, starts = np.unique(times, return_index=True)
+    ends = np.append(starts[1:], len(times))
+    instants = frame_times(float(steps[0]), float(steps[-1]), options.every)
+    shown = step_at(steps, instants)
+    xy = df[[xcol, ycol]].to_numpy(float)
+    angle = df["angle"].fillna(90.0).to_numpy(float)
+    colours, legend = vehicle_colours(df)
+    ids = df["id"].to_numpy(dtype=object)
+    centres = None
+    if options.follow is not None:
+        mine = ids == options.follow
+        if not mine.any():
+            sample = ", ".join(sorted(set(ids.tolist()))[:5])
+            raise BehaveError(f"--follow {options.follow}: no such vehicle in {fcd} (it has {sample}, ...)")
+        centres = follow_centres(times[mine], xy[mine], instants)
+    shapes = road_shapes(net) if net is not None else ([], [], [])
+    figure, axes = _figure(xy, shapes, options, geo=xcol == "lon")
+    _legend(axes, legend, options.follow)
+    from matplotlib.collections import PolyCollection
+
+    cars = PolyCollection([], edgecolors="black", linewidths=0.3, zorder=3)
+    axes.add_collection(cars)
+    stamp = axes.text(0.01, 0.98, "", transform=axes.transAxes, va="top", ha="left", zorder=5,
+                      bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})  # fmt: skip
+    scale = _degree_scale(xy) if xcol == "lon" else (1.0, 1.0)
+    writer = movie_writer(out, options.fps)
+    with atomic_path(out) as tmp, writer.saving(figure, str(tmp), DPI):
+        for k, (instant, step) in enumerate(zip(instants.tolist(), shown.tolist(), strict=True)):
+            rows = slice(starts[step], ends[step])
+            boxes = car_boxes(
+                xy[rows, 0], xy[rows, 1], angle[rows], CAR_LENGTH * scale[0], CAR_WIDTH * scale[1]
+            )
+            cars.set_verts(list(boxes))
+            cars.set_facecolor(list(colours[rows]))
+            cars.set_linewidth(np.where(ids[rows] == options.follow, 1.5, 0.3).tolist())
+            stamp.set_text(time_label(instant, options.every))
+            if centres is not None:
+                _centre_on(axes, centres[k], options.window, scale)
+            writer.grab_frame()
+            if on_frame:
+                on_frame(k + 1, len(instants))
+    return len(instants)
+
+
+def movie_writer(out: Path, fps: int) -> Any:
+    """Pillow's GIF writer (palette frames) or matplotlib's ffmpeg writer: both `saving(figure,
+    path, dpi)` and `grab_frame()`."""
+    if out.suffix.lower() == ".gif":
+        return PaletteGifWriter(fps=fps)
+    from matplotlib.animation import FFMpegWriter
+
+    return FFMpegWriter(fps=fps, codec="libx264", extra_args=["-pix_fmt", "yuv420p"])
+
+
+def _say(on_status: Callable[[str], None] | None, text: str) -> None:
+    if on_status:
+        on_status(text)
+
+
+def _degree_scale(xy: np.ndarray) -> tuple[float, float]:
+    """Degrees of (lon, lat) per metre near the records, so boxes keep their size on a geo FCD."""
+    lat = math.radians(float(np.nanmean(xy[:, 1])))
+    metres = 111_320.0
+    return 1 / (metres * max(math.cos(lat), 1e-6)), 1 / metres
+
+
+def _figure(
+    xy: np.ndarray,
+    shapes: tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]],
+    options: AnimateOptions,
+    geo: bool,
+) -> tuple[Figure, Axes]:
+    """The figure with the road drawn once; its shape follows the area shown (the net's and the
+    records', or the followed window)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import LineCollection, PolyCollection
+    from matplotlib.figure import Figure
+
+    surfaces, markings, edges = shapes
+    points = np.concatenate([xy, *surfaces]) if surfaces else xy
+    low, high = np.nanmin(points, axis=0), np.nanmax(points, axis=0)
+    margin = 0.0 if geo else MARGIN_M
+    x_scale = math.cos(math.radians(float(np.nanmean(xy[:, 1])))) if geo else 1.0
+    low, high, ratio = fit_view(low - margin, high + margin, x_scale)
+    if options.follow:
+        ratio = 1.0
+    size = (FIGURE_WIDTH_IN, round(FIGURE_WIDTH_IN * ratio, 2))
+    figure = Figure(figsize=size, dpi=DPI, layout="constrained")
+    FigureCanvasAgg(figure)
+    axes = figure.add_subplot()
+    axes.add_collection(PolyCollection(surfaces, facecolors=ROAD_COLOUR, edgecolors="none", zorder=1))
+    dashed = {"linewidths": 0.6, "linestyles": (0, (4, 4))}
+    axes.add_collection(LineCollection(markings, colors=MARKING_COLOUR, zorder=2, **dashed))
+    axes.add_collection(LineCollection(edges, colors=MARKING_COLOUR, linewidths=1.0, zorder=2))
+    axes.set_xlim(low[0], high[0])
+    axes.set_ylim(low[1], high[1])
+    axes.set_aspect(1.0 / max(x_scale, 1e-6), adjustable="box")  # the limits already fit the figure
+    axes.set_xlabel("lon [deg]" if geo else "x [m]")
+    axes.set_ylabel("lat [deg]" if geo else "y [m]")
+    axes.set_facecolor("white")
+    return figure, axes
+
+
+def _legend(axes: Axes, legend: dict[str, str], follow: str | None) -> None:
+    from matplotlib.patches import Patch
+
+    handles = [Patch(facecolor=colour, edgecolor="black", label=label) for label, colour in legend.items()]
+    if follow is not None:
+        handles.append(Patch(facecolor="none", edgecolor="black", linewidth=1.5, label=f"followed: {follow}"))
+    axes.legend(handles=handles, loc="upper right", fontsize="small", framealpha=0.9)
+
+
+def _centre_on(axes: Axes, centre: np.ndarray, window: float, scale: tuple[float, float]) -> None:
+    half_x, half_y = window / 2 * scale[0], window / 2 * scale[1]
+    axes.set_xlim(centre[0] - half_x, centre[0] + half_x)
+    axes.set_ylim(centre[1] - half_y, centre[1] + half_y)
+
+
+class PaletteGifWriter:
+    """matplotlib's movie-writer protocol (`saving`, `grab_frame`) for GIF through Pillow, keeping
+    each frame as an 8-bit palette image: an RGBA frame list (PillowWriter's) took 0.8 MB per
+    frame at 800 x 250 pixels."""
+
+    COLOURS = 64
+
+    def __init__(self, fps: int) -> None:
+        self.fps = fps
+        self.frames: list[Any] = []
+        self.figure: Figure | None = None
+
+    def saving(self, figure: Figure, path: str, dpi: float) -> _Saving:
+        return _Saving(self, figure, path)
+
+    def grab_frame(self) -> None:
+        from PIL import Image
+
+        assert self.figure is not None
+        canvas = self.figure.canvas
+        canvas.draw()
+        rgba = np.asarray(canvas.buffer_rgba())  # type: ignore[attr-defined]
+        image = Image.fromarray(rgba[..., :3].copy())
+        self.frames.append(image.quantize(colors=self.COLOURS, method=Image.Quantize.MEDIANCUT))
+
+    def finish(self, path: str) -> None:
+        if not self.frames:
+            return
+        first, *rest = self.frames
+        duration = round(1000 / self.fps)
+        first.save(path, format="GIF", save_all=True, append_images=rest, duration=duration, loop=0)
+
+
+class _Saving:
+    """`with writer.saving(figure, path, dpi):` frames are grabbed inside, the file written at exit."""
+
+    def __init__(self, writer: PaletteGifWriter, figure: Figure, path: str) -> None:
+        self.writer, self.figure, self.path = writer, figure, path
+
+    def __enter__(self) -> PaletteGifWriter:
+        self.writer.figure = self.figure
+        self.writer.frames = []
+        return self.writer
+
+    def __exit__(self, kind: object, *rest: object) -> None:
+        if kind is None:
+            self.writer.finish(self.path)
+        self.writer.frames = []
