@@ -593,8 +593,8 @@ def run_parallel_row(row: Row, plan: Plan, n: int) -> list[Result]:
         )
         for k in range(n)
     ]
-    alone = [new_result(row, c, f"{ALONE}, populate {k + 1} of {n}") for k, c in enumerate(configs)]
-    at_once = [new_result(row, c, f"{n} {AT_ONCE}, populate {k + 1}") for k, c in enumerate(configs)]
+    alone = [new_result(row, c, f"#{k + 1} {ALONE}") for k, c in enumerate(configs)]
+    at_once = [new_result(row, c, f"#{k + 1}, {n} {AT_ONCE}") for k, c in enumerate(configs)]
     for k in range(plan.rounds):
         schedule = alternating_blocks(plan.steps, plan.block, (ALONE, AT_ONCE), flip=k % 2 == 1)
         reports = run_in_lockstep([(c, c.fcd) for c in configs], schedule, together=(AT_ONCE,),
@@ -638,13 +638,20 @@ COLUMNS = (
     "off-tracks",
     "retries",
 )
-CONDITION_COLUMNS = ("condition", "slow-down", "SUMO alone slow-down")
+SLOWDOWN_COLUMNS = ("slow-down", "SUMO alone slow-down")
 MEMORY_COLUMNS = ("peak RSS MB", "SUMO alone peak RSS MB")
 
 
-def columns(condition: bool = False, memory: bool = False) -> tuple[str, ...]:
-    """The table's columns: the default ones, then those of the options that add some."""
-    return COLUMNS + (CONDITION_COLUMNS if condition else ()) + (MEMORY_COLUMNS if memory else ())
+def columns(condition: bool = False) -> tuple[str, ...]:
+    """The main table's columns: the default ones, with "condition" after "agents" when the rows
+    are measured under more than one (CPU burner, parallel)."""
+    return COLUMNS[:1] + (("condition",) if condition else ()) + COLUMNS[1:]
+
+
+def extra_columns(condition: bool = False, memory: bool = False) -> tuple[str, ...]:
+    """Columns of the options at scale: printed as a table of their own (the main one is wide
+    already), appended to the main ones in the CSV."""
+    return (SLOWDOWN_COLUMNS if condition else ()) + (MEMORY_COLUMNS if memory else ())
 
 
 def number(value: float, digits: int = 2) -> str:
@@ -652,11 +659,12 @@ def number(value: float, digits: int = 2) -> str:
     return "-" if math.isnan(value) else f"{value:.{digits}f}"
 
 
-def row_of(r: Result, for_csv: bool = False, condition: bool = False, memory: bool = False) -> list[str]:
+def row_of(r: Result, for_csv: bool = False, condition: bool = False) -> list[str]:
     agents = f"{r.row.agents}" if for_csv else f"{r.row.agents:,}"
     has_alone = r.alone_steps > 0
-    cells = [
+    return [
         agents,
+        *([r.condition] if condition else []),
         r.policy.removesuffix(".pt"),
         f"{r.overtakers}/{r.keepers}",
         str(r.row.background),
@@ -672,11 +680,18 @@ def row_of(r: Result, for_csv: bool = False, condition: bool = False, memory: bo
         str(r.off_tracks),
         str(r.retries),
     ]
-    if condition:
-        cells += [r.condition, number(r.slowdown), number(r.alone_slowdown)]
+
+
+def extra_cells(r: Result, condition: bool = False, memory: bool = False) -> list[str]:
+    cells = [number(r.slowdown), number(r.alone_slowdown)] if condition else []
     if memory:
-        cells += [number(r.peak_rss_mb, 0), number(r.alone_peak_rss_mb, 0) if has_alone else "-"]
+        cells += [number(r.peak_rss_mb, 0), number(r.alone_peak_rss_mb, 0) if r.alone_steps > 0 else "-"]
     return cells
+
+
+def csv_rows(results: list[Result], condition: bool = False, memory: bool = False) -> Iterator[list[str]]:
+    for r in results:
+        yield row_of(r, True, condition) + extra_cells(r, condition, memory)
 
 
 def title_of(args: argparse.Namespace) -> str:
@@ -693,17 +708,35 @@ def title_of(args: argparse.Namespace) -> str:
     )
 
 
+def scale_row(r: Result, condition: bool, memory: bool) -> list[str]:
+    """A row of the table of the options at scale: what it is, its ms/step, the new figures."""
+    label = [f"{r.row.agents:,}", *([r.condition] if condition else [])]
+    alone = [number(r.alone_ms), number(r.ratio)] if r.alone_steps else ["-", "-"]
+    return [*label, f"{r.ms_per_step:.2f}", *alone, *extra_cells(r, condition, memory)]
+
+
+def has_conditions(args: argparse.Namespace) -> bool:
+    return bool(args.beside_cpu_burner or args.parallel)
+
+
 def print_results(results: list[Result], args: argparse.Namespace, console: Console) -> None:
-    shown = columns(condition=bool(args.beside_cpu_burner or args.parallel), memory=args.memory)
-    extra = {"condition": bool(args.beside_cpu_burner or args.parallel), "memory": args.memory}
-    print_table(console, title_of(args), shown, (row_of(r, **extra) for r in results))
+    condition = has_conditions(args)
+    print_table(
+        console, title_of(args), columns(condition), (row_of(r, condition=condition) for r in results)
+    )
     console.print(
         "RTF = real-time factor; ot/kp = overtakers/keepers; SUMO alone = ms/step of the SUMO step with "
         "the same vehicle count, all behave_background, FCD on; ratio = ms/step / SUMO alone;\n"
         "FCD = SUMO alone with FCD minus without (ms/step); collisions, off-tracks and insert retries of "
         "the agents during the timed steps"
     )
-    if extra["condition"]:
+    extra = extra_columns(condition, args.memory)
+    if not extra:
+        return
+    header = ("agents", *(("condition",) if condition else ()), "ms/step", "SUMO alone", "ratio", *extra)
+    rows = (scale_row(r, condition, args.memory) for r in results)
+    print_table(console, "at scale: slow-down under load and peak memory", header, rows)
+    if condition:
         console.print(
             "slow-down = ms/step / the same run's idle steps (CPU burner) or the same populate's steps "
             "alone (parallel); SUMO alone slow-down likewise for SUMO alone's step"
@@ -853,8 +886,9 @@ def main(argv: list[str] | None = None) -> None:
         for line in target_lines(results):
             console.print(line)
         if args.csv is not None:
-            extra = {"condition": bool(args.beside_cpu_burner or args.parallel), "memory": args.memory}
-            write_csv(args.csv, columns(**extra), (row_of(r, for_csv=True, **extra) for r in results))
+            condition = has_conditions(args)
+            header = columns(condition) + extra_columns(condition, args.memory)
+            write_csv(args.csv, header, csv_rows(results, condition, args.memory))
             console.print(f"wrote {args.csv}")
         if args.profile:
             largest = max(args.row_list, key=lambda r: r.agents)
