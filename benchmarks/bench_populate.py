@@ -44,7 +44,6 @@ import math
 import multiprocessing
 import os
 import pstats
-import signal
 import tempfile
 import time
 from collections.abc import Callable, Collection, Iterator, Sequence
@@ -52,10 +51,9 @@ from dataclasses import dataclass, field, replace
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
 from pathlib import Path
-from types import TracebackType
 
 import torch
-from common import print_table, progress, write_csv
+from common import CpuBurner, print_table, progress, write_csv
 from rich.console import Console
 
 from behaviors.ddpg.checkpoint import load_checkpoint
@@ -447,59 +445,6 @@ def _expect(conn: Connection, message: str) -> None:
         raise RuntimeError(f"benchmark child sent {got!r}, expected {message!r}")
 
 
-def burn() -> None:
-    """Pure-Python spinning on one core: what another populate, a training or a build does beside
-    a populate. Never returns; CpuBurner kills it."""
-    x = 0
-    while True:
-        x = (x * 1_103_515_245 + 12_345) & 0x7FFF_FFFF
-
-
-class CpuBurner:
-    """A CPU-bound process beside the benchmark, running while a LOADED block steps and stopped
-    (SIGSTOP) otherwise. Started on entering the `with` block and killed on leaving it, whatever
-    happened inside, so it never outlives the benchmark."""
-
-    def __init__(self) -> None:
-        self.process: BaseProcess | None = None
-
-    def __enter__(self) -> CpuBurner:
-        context = multiprocessing.get_context("spawn")
-        self.process = context.Process(target=burn, daemon=True, name="bench_populate CPU burner")
-        self.process.start()
-        self.pause()
-        return self
-
-    def _signal(self, signum: signal.Signals) -> None:
-        assert self.process is not None and self.process.pid is not None
-        os.kill(self.process.pid, signum)
-
-    def pause(self) -> None:
-        self._signal(signal.SIGSTOP)
-
-    def resume(self) -> None:
-        self._signal(signal.SIGCONT)
-
-    def switch(self, label: str) -> None:
-        """Spin during LOADED blocks only."""
-        if label == LOADED:
-            self.resume()
-        else:
-            self.pause()
-
-    @property
-    def alive(self) -> bool:
-        return self.process is not None and self.process.is_alive()
-
-    def __exit__(
-        self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
-    ) -> None:
-        if self.process is None:
-            return
-        self.process.kill()  # SIGKILL ends a stopped process too
-        self.process.join(timeout=30)
-
-
 def add_round(
     result: Result, label: str, ours: ChildReport, by_sumo: ChildReport | None, no_fcd: ChildReport | None
 ) -> None:
@@ -572,7 +517,10 @@ def run_row(
         schedule = alternating_blocks(steps, block, labels, flip=k % 2 == 1) if burner else [(IDLE, steps)]
         runs = [(config, config.fcd), (alone, alone.fcd), (alone, None)]
         ours, by_sumo, no_fcd = run_in_lockstep(
-            runs, schedule, on_block=burner.switch if burner else None, insert_timeout_s=insert_timeout_s
+            runs,
+            schedule,
+            on_block=(lambda label: burner.switch(label == LOADED)) if burner else None,
+            insert_timeout_s=insert_timeout_s,
         )
         for label in labels:
             add_round(results[label], label, ours, by_sumo, no_fcd)
