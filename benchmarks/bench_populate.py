@@ -38,6 +38,7 @@ Usage: python benchmarks/bench_populate.py [--rows 100:100,1000:200] [--steps 20
 from __future__ import annotations
 
 import argparse
+import contextlib
 import cProfile
 import io
 import math
@@ -228,18 +229,24 @@ def insertion_message(inserted: int, wanted: int, steps: int, seconds: float, ne
     )
 
 
+def all_in(pending: int, wanted: int) -> bool:
+    """Every vehicle placed, but for 1% still being placed: a car that reached the end of its route
+    comes back as a new insertion (`--keep-count`), so a road with a few arrivals per step is never
+    without any pending."""
+    return pending <= wanted // 100
+
+
 def warm_up(population: Population, timeout_s: float = INSERT_TIMEOUT_S) -> dict[str, int]:
     """WARMUP_STEPS steps, then on until every vehicle is in (10,000 take SUMO a while to place),
     then a clean timer; the summary's counts at that point. Raises InsertionTimeout after `timeout_s`."""
     wanted = vehicles_wanted(population.config)
     start = time.perf_counter()
     steps = 0
-    while steps < WARMUP_STEPS or population.summary.vehicles < wanted:
-        if steps >= WARMUP_STEPS and time.perf_counter() - start > timeout_s:
-            message = insertion_message(
-                population.summary.vehicles, wanted, steps, time.perf_counter() - start, population.config.net
-            )
-            raise InsertionTimeout(message)
+    while steps < WARMUP_STEPS or not all_in(len(population.pending), wanted):
+        seconds = time.perf_counter() - start
+        if steps >= WARMUP_STEPS and seconds > timeout_s:
+            inserted = wanted - len(population.pending)
+            raise InsertionTimeout(insertion_message(inserted, wanted, steps, seconds, population.config.net))
         population.step()
         steps += 1
     population.timer.reset()
@@ -332,6 +339,16 @@ def _loss_counts(population: Population) -> dict[str, int]:
     return {"collisions": s.collisions, "off_tracks": s.off_tracks, "retries": s.insert_retries}
 
 
+def _next_label(conn: Connection) -> str | None:
+    """The label of the parent's next ("step", label); None on "stop" or if the parent is gone (it
+    gave up on another run)."""
+    try:
+        message = conn.recv()
+    except EOFError:
+        return None
+    return None if message == "stop" else str(message[1])
+
+
 def _stepper(config: PopulateConfig, fcd: Path | None, conn: Connection, insert_timeout_s: float) -> None:
     """A child process: one run, warmed up, then one timed step per ("step", label) message from
     the parent, each step's time, phases and losses kept under its label; on "stop" it sends back
@@ -347,8 +364,7 @@ def _stepper(config: PopulateConfig, fcd: Path | None, conn: Connection, insert_
             return
         conn.send("ready")
         buckets: dict[str, Bucket] = {}
-        while (message := conn.recv()) != "stop":
-            _, label = message
+        while (label := _next_label(conn)) is not None:
             phases, losses = dict(population.timer.seconds), _loss_counts(population)
             start = time.perf_counter()
             population.step()
@@ -358,7 +374,8 @@ def _stepper(config: PopulateConfig, fcd: Path | None, conn: Connection, insert_
                        {k: v - losses[k] for k, v in _loss_counts(population).items()})  # fmt: skip
             conn.send(None)
         on_road = len(population.sim.vehicle_ids()) if population.sim else 0
-        conn.send(ChildReport(buckets, on_road, own_peak_rss_mb()))
+        with contextlib.suppress(OSError):  # the parent is gone
+            conn.send(ChildReport(buckets, on_road, own_peak_rss_mb()))
     finally:
         population.close()
 
@@ -431,7 +448,8 @@ def run_in_lockstep(
     except EOFError:
         raise SystemExit("bench_populate: a benchmark run stopped (its error is printed above)") from None
     finally:
-        for child, _ in children:
+        for child, conn in children:
+            conn.close()  # a child still waiting for a step (another stopped) ends on EOFError
             child.join(timeout=60)
             if child.is_alive():
                 child.kill()

@@ -24,6 +24,7 @@ from bench_populate import (
     InsertionTimeout,
     Result,
     Row,
+    all_in,
     alternating_blocks,
     columns,
     core_count,
@@ -132,7 +133,6 @@ def test_every_row_has_a_cell_per_column():
 
 @dataclass
 class Summary:
-    vehicles: int = 0
     collisions: int = 0
 
 
@@ -158,6 +158,7 @@ class FakePopulation:
 
     all_in: int | None
     steps: int = 0
+    pending: dict[str, str] = field(default_factory=lambda: {f"keeper_{k}": "keeper" for k in range(12)})
     config: Config = field(default_factory=Config)
     summary: Summary = field(default_factory=Summary)
     timer: Timer = field(default_factory=Timer)
@@ -165,7 +166,7 @@ class FakePopulation:
     def step(self) -> None:
         self.steps += 1
         if self.steps == self.all_in:
-            self.summary.vehicles = 12
+            self.pending = {}
 
 
 def test_warm_up_waits_for_every_vehicle():
@@ -174,6 +175,11 @@ def test_warm_up_waits_for_every_vehicle():
     warm_up(late)  # type: ignore[arg-type]
     assert (early.steps, late.steps) == (WARMUP_STEPS, WARMUP_STEPS + 7)
     assert late.timer.resets == 1
+
+
+def test_a_few_cars_being_placed_again_count_as_all_in():
+    assert all_in(0, 50) and not all_in(1, 50)
+    assert all_in(120, 12_000) and not all_in(121, 12_000)
 
 
 def test_warm_up_gives_up_with_a_clear_message():
