@@ -77,6 +77,10 @@ ALONE = "alone"
 AT_ONCE = "at once"
 BLOCK_STEPS = 10
 INSERT_TIMEOUT_S = 900.0
+ROUTE_STEPS = 200
+"""Steps the routes are drawn for at least (populate draws them for its duration): with a few timed
+steps only (smoke runs), routes of a few hundred metres made cars arrive and come back as new
+insertions so often that the warm-up never saw every vehicle in."""
 
 
 @dataclass(frozen=True)
@@ -279,6 +283,12 @@ def config_for(
         fcd=fcd,
         keep_count=True,
     )
+
+
+def route_steps(timed_steps: int) -> int:
+    """The steps a run's routes are drawn for: its timed steps, at least ROUTE_STEPS (the default
+    --steps, so the default rows are as before)."""
+    return max(timed_steps, ROUTE_STEPS)
 
 
 def sumo_alone_config(config: PopulateConfig) -> PopulateConfig:
@@ -528,7 +538,7 @@ def run_row(
     """The row's populate, SUMO alone and SUMO alone without FCD in lockstep, `rounds` times; with
     a burner, `steps` idle and `steps` loaded steps per round, in alternating blocks."""
     labels = (IDLE, LOADED) if burner is not None else (IDLE,)
-    config = config_for(row, net, tmp / "populate.fcd.xml", steps * len(labels), seed, policy)
+    config = config_for(row, net, tmp / "populate.fcd.xml", route_steps(steps * len(labels)), seed, policy)
     alone = sumo_alone_config(replace(config, fcd=tmp / "alone.fcd.xml"))
     results = {label: new_result(row, config, label) for label in labels}
     for k in range(rounds):
@@ -555,7 +565,12 @@ def run_parallel_row(row: Row, plan: Plan, n: int) -> list[Result]:
     `steps` all at once per round, in alternating blocks; each at once against itself alone."""
     configs = [
         config_for(
-            row, plan.net, plan.tmp / f"parallel_{k}.fcd.xml", 2 * plan.steps, plan.seed + k, plan.policy
+            row,
+            plan.net,
+            plan.tmp / f"parallel_{k}.fcd.xml",
+            route_steps(2 * plan.steps),
+            plan.seed + k,
+            plan.policy,
         )
         for k in range(n)
     ]

@@ -33,6 +33,7 @@ from bench_populate import (
     parse_args,
     parse_rows,
     peak_rss_mb,
+    route_steps,
     row_of,
     target_lines,
     verdict,
@@ -70,6 +71,12 @@ def test_blocks_take_turns_and_give_each_label_its_steps():
         assert sum(n for label, n in labels if label == IDLE) == 25
         assert sum(n for label, n in labels if label == LOADED) == 25
     assert alternating_blocks(200, 200, (IDLE,)) == [(IDLE, 200)]  # the default schedule
+
+
+def test_routes_are_drawn_for_the_default_steps_at_least():
+    assert route_steps(200) == 200  # the default rows: as before
+    assert route_steps(10) == 200  # a smoke run's cars do not arrive and come back all warm-up long
+    assert route_steps(400) == 400  # idle + loaded steps
 
 
 def test_a_bar_is_met_at_the_bar_and_missed_without_a_measurement():
