@@ -10,7 +10,7 @@ PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 WORKERS ?= 1
 
-.PHONY: setup run test typecheck lint bench soak learn-check pretrained paper realism own-nets dense flow clean
+.PHONY: setup run test typecheck lint bench bench-scale soak learn-check pretrained paper realism own-nets dense flow clean
 
 setup: $(DEV_STAMP)
 
@@ -46,6 +46,14 @@ bench: $(STAMP)
 	$(BIN)/pip install $(PIP_FLAGS) -e '.[bench]'
 	$(BIN)/python benchmarks/bench_env.py
 	$(BIN)/python benchmarks/bench_populate.py
+
+# issue 25's rows at scale: under load, N populates at once, 10,000 agents (tens of minutes)
+bench-scale: $(STAMP)
+	mkdir -p runs/bench_scale
+	$(BIN)/python benchmarks/bench_populate.py --rows 1000:200 --beside-cpu-burner --csv runs/bench_scale/burner.csv
+	$(BIN)/python benchmarks/bench_populate.py --rows 1000:200 --parallel --csv runs/bench_scale/parallel.csv
+	$(BIN)/python benchmarks/bench_populate.py --rows 10000:2000 --length 300000 --rounds 2 --memory \
+		--csv runs/bench_scale/scale.csv
 
 soak: $(STAMP)
 	$(BIN)/python benchmarks/soak.py --jobs 2

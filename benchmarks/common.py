@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 import csv
+import multiprocessing
+import os
+import signal
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
+from multiprocessing.connection import Connection
+from multiprocessing.process import BaseProcess
 from pathlib import Path
+from types import TracebackType
 
 from rich.console import Console
 from rich.table import Table
@@ -61,3 +67,56 @@ def write_measured_doc(path: Path, measured: str) -> None:
         start = old.find("\n## ")
         kept = old[start:] if start >= 0 else ""
     atomic_write_text(path, measured.rstrip("\n") + "\n" + kept)
+
+
+def burn(conn: Connection) -> None:
+    """Pure-Python spinning on one core: what another populate, a training or a build does beside
+    a benchmark. Says so once it spins (its imports are done); never returns: CpuBurner kills it."""
+    conn.send("spinning")
+    x = 0
+    while True:
+        x = (x * 1_103_515_245 + 12_345) & 0x7FFF_FFFF
+
+
+class CpuBurner:
+    """A CPU-bound process beside a benchmark, spinning while switched on and stopped (SIGSTOP)
+    while off; it starts off. Started on entering the `with` block and killed on leaving it,
+    whatever happened inside, so it never outlives the benchmark."""
+
+    START_TIMEOUT_S = 120.0
+
+    def __init__(self) -> None:
+        self.process: BaseProcess | None = None
+
+    def __enter__(self) -> CpuBurner:
+        context = multiprocessing.get_context("spawn")
+        ours, theirs = context.Pipe()
+        self.process = context.Process(target=burn, args=(theirs,), daemon=True, name="CPU burner")
+        self.process.start()
+        try:
+            if not ours.poll(self.START_TIMEOUT_S) or ours.recv() != "spinning":
+                raise RuntimeError("the CPU burner did not start")
+            self.switch(False)
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def switch(self, on: bool) -> None:
+        """Spin (SIGCONT) or stand still (SIGSTOP)."""
+        assert self.process is not None and self.process.pid is not None
+        os.kill(self.process.pid, signal.SIGCONT if on else signal.SIGSTOP)
+
+    @property
+    def alive(self) -> bool:
+        return self.process is not None and self.process.is_alive()
+
+    def stop(self) -> None:
+        if self.process is not None:
+            self.process.kill()  # SIGKILL ends a stopped process too
+            self.process.join(timeout=30)
+
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
+    ) -> None:
+        self.stop()
