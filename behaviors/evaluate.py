@@ -229,6 +229,7 @@ def run_plan(
     realism: Path | None = None,
     *,
     pictures: bool = True,
+    on_result: Callable[[dict], None] | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """One row per (policy, setting) with the episode-averaged metrics, and the realism table.
 
@@ -258,6 +259,8 @@ def run_plan(
                     mean["overtakes_per_agent"] = mean["passed_frac"] * config.n_opponents
                 rows.append({"policy": label, "setting": setting, "agents": config.n_agents,
                              "episodes": plan.episodes, **mean})  # fmt: skip
+                if on_result:
+                    on_result(rows[-1])
                 if realism is not None:
                     realism_rows += realism_of_setting(fcd, plan.episodes, config, realism, label, setting,
                                                        picture=pictures)  # fmt: skip

@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED, check_number
+from behaviors.cli.progress import QUIET, VERBOSE, verbosity
 from behaviors.errors import BehaveError
 from behaviors.files import check_output_path
 
@@ -56,8 +57,12 @@ def evaluate_command(
     out: Annotated[Path, typer.Option(help="directory for results.csv, results.md, metrics.png")] = Path(
         "runs/evaluate"
     ),
+    quiet: QUIET = False,
+    verbose: VERBOSE = False,
 ) -> None:
-    """Average the paper's metrics over episodes for every policy and setting."""
+    """Average the paper's metrics over episodes for every policy and setting (-q: only the files
+    and errors; -v: each setting's figures as it finishes)."""
+    level = verbosity(quiet, verbose)
     from behaviors.evaluate import PAPER_METRICS, plan_evaluation, realism_markdown, run_plan, write_report
     from behaviors.realism import SKIP_S
 
@@ -66,7 +71,7 @@ def evaluate_command(
         overtakers=overtakers, keepers=keepers, placements=parse_list(placement), scenario=scenario,
         seed=seed, max_steps=max_steps, baseline=baseline, opponents=opponents, shield=shield,
     )  # fmt: skip
-    console = Console()
+    console = Console(quiet=level < 0)
     seconds = max_steps * plan.settings[0][1].step_length
     if realism and seconds <= SKIP_S:
         console.print(f"no realism report: episodes of {seconds:g} s, and each car's first {SKIP_S:g} s are "
@@ -78,6 +83,7 @@ def evaluate_command(
         plan,
         on_setting=lambda p, s: console.print(f"evaluating {p}: {s}", style="dim"),
         realism=out / "realism" if realism else None,
+        on_result=(lambda row: console.print(setting_line(row), style="dim")) if level > 0 else None,
     )
     table = Table(title=f"behave evaluate ({episodes} episodes per setting)")
     columns = ["policy", "setting", *(m for m, _ in PAPER_METRICS), "off_tracks", "mean_speed_frac"]
@@ -92,10 +98,16 @@ def evaluate_command(
         table.add_row(*(row[c] if isinstance(row[c], str) else f"{row[c]:,.2f}" for c in columns))
     console.print(table)
     if not realism_table.empty:
-        typer.echo(f"\nRealism (full reports in {out / 'realism'}/<policy>/<setting>/):\n")
-        typer.echo(realism_markdown(realism_table))
+        console.print(f"\nRealism (full reports in {out / 'realism'}/<policy>/<setting>/):\n")
+        console.print(realism_markdown(realism_table), markup=False, highlight=False)
     for path in write_report(results, out, realism_table):
-        typer.echo(f"wrote {path}")
+        console.print(f"wrote {path}", markup=False, highlight=False)
+
+
+def setting_line(row: dict) -> str:
+    """A finished setting's figures, for -v."""
+    figures = ", ".join(f"{SHORT.get(k, k)} {v:,.2f}" for k, v in row.items() if isinstance(v, float))
+    return f"  {row['policy']} {row['setting']}: {figures}"
 
 
 SHORT = {

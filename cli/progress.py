@@ -62,11 +62,11 @@ class ProgressLines:
         self.start = self.last_time = clock()
         self.last_done = 0.0
 
-    def update(self, done: float) -> None:
+    def update(self, done: float, detail: str = "") -> None:
         now = self.clock()
         if line_due(done, self.total, self.last_done, now, self.last_time):
             line = progress_line(self.what, done, self.total, self.unit, now - self.start)
-            print(line, file=self.stream, flush=True)
+            print(f"{line}; {detail}" if detail else line, file=self.stream, flush=True)
             self.last_done, self.last_time = done, now
 
     def close(self) -> None:
@@ -81,14 +81,15 @@ class ProgressBar:
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
         count = TextColumn(f"{{task.completed:.0f}}/{{task.total:.0f}} {unit}")
-        columns = (TextColumn(what), BarColumn(), count, TimeElapsedColumn())
+        detail = TextColumn("{task.fields[detail]}")
+        columns = (TextColumn(what), BarColumn(), count, TimeElapsedColumn(), detail)
         self.progress = Progress(*columns, transient=True, console=Console(stderr=stderr))
-        self.task = self.progress.add_task(what, total=total)
+        self.task = self.progress.add_task(what, total=total, detail="")
 
-    def update(self, done: float) -> None:
+    def update(self, done: float, detail: str = "") -> None:
         if not self.progress.live.is_started:
             self.progress.start()
-        self.progress.update(self.task, completed=done)
+        self.progress.update(self.task, completed=done, detail=detail)
 
     def close(self) -> None:
         if self.progress.live.is_started:
@@ -96,7 +97,7 @@ class ProgressBar:
 
 
 class NoProgress:
-    def update(self, done: float) -> None:
+    def update(self, done: float, detail: str = "") -> None:
         pass
 
     def close(self) -> None:

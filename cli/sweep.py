@@ -9,6 +9,7 @@ from typing import Annotated
 import typer
 
 from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED_MAX, check_number
+from behaviors.cli.progress import QUIET, VERBOSE, verbosity
 from behaviors.errors import BehaveError
 
 
@@ -78,9 +79,13 @@ def sweep_command(
     ] = None,
     out: Annotated[Path, typer.Option(help="the sweep folder (run again to resume)")] = Path("runs/sweep"),
     keep_fcd: Annotated[bool, typer.Option(help="keep each run's FCD and agents table in OUT/fcd/")] = False,
+    quiet: QUIET = False,
+    verbose: VERBOSE = False,
 ) -> None:
     """Populate runs over a grid (shares x seeds x policies x scenarios) in parallel on Ray: one row per
-    run in <out>/sweep.csv and .parquet, the main figures against the share in sweep.png."""
+    run in <out>/sweep.csv and .parquet, the main figures against the share in sweep.png.
+    -q: errors only; -v: the whole table with every figure."""
+    level = verbosity(quiet, verbose)
     from behaviors.sweep import Grid, check_grid, resolve_net, resolve_policy, resolve_sumocfg, run_sweep
 
     if workers is not None:
@@ -100,13 +105,15 @@ def sweep_command(
     points = check_grid(grid)
     result = run_sweep(
         points, out, workers=workers, address=ray_address, keep_fcd=keep_fcd,
-        on_event=lambda text: typer.echo(f"sweep: {text}", err=True),
+        on_event=(lambda text: typer.echo(f"sweep: {text}", err=True)) if level >= 0 else None,
     )  # fmt: skip
     table = result.table
-    shown = [c for c in ("id", "status", "all_mean_speed", "sumo_mean_speed", "collisions") if c in table]
-    typer.echo(table[shown].to_string(index=False, float_format=lambda v: f"{v:.2f}"))
-    for path in result.outputs:
-        typer.echo(f"wrote {path}")
+    if level >= 0:
+        brief = [c for c in ("id", "status", "all_mean_speed", "sumo_mean_speed", "collisions") if c in table]
+        shown = list(table.columns) if level > 0 else brief
+        typer.echo(table[shown].to_string(index=False, float_format=lambda v: f"{v:.2f}"))
+        for path in result.outputs:
+            typer.echo(f"wrote {path}")
     failed = int((table["status"] != "ok").sum())
     if failed:
         typer.echo(f"behave: {failed} of {len(table)} runs failed (their error is in the table)", err=True)

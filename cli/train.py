@@ -9,9 +9,9 @@ from types import SimpleNamespace
 from typing import Annotated
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED, number
+from behaviors.cli.progress import QUIET, VERBOSE, make_progress, verbosity
 
 DEFAULTS = SimpleNamespace(
     behaviour="lanekeeping", scenario="ring", agents=6, overtakers=0, keepers=0, placement="C",
@@ -135,9 +135,15 @@ def train(
     ray_address: Annotated[
         str | None, typer.Option(help="join this Ray cluster (default: a local Ray) with --workers")
     ] = None,
+    quiet: QUIET = False,
+    verbose: VERBOSE = False,
 ) -> None:
-    """Train a behaviour; Ctrl-C or SIGTERM stops it (exit 130 or 143), resumable with --resume."""
+    """Train a behaviour; Ctrl-C or SIGTERM stops it (exit 130 or 143), resumable with --resume.
+
+    Progress: a bar in a terminal, a line every tenth of the run or 30 s in a log, one line per
+    episode with -v, nothing with -q."""
     given = dict(locals())  # the options as typer parsed them, by name
+    level = verbosity(quiet, verbose)
     from behaviors.train import TrainConfig, prepare_run  # torch: only when training
 
     config = TrainConfig.from_options(**{
@@ -150,38 +156,42 @@ def train(
         config, run_dir, resume=resume is not None, episodes=episodes, ray_address=ray_address
     )
     total = trainer.config.episodes
-    columns = (
-        TextColumn("episode"), MofNCompleteColumn(), BarColumn(), TextColumn("{task.fields[status]}"),
-        TimeElapsedColumn(),
-    )  # fmt: skip
-    with Progress(*columns, transient=False) as progress:
-        task = progress.add_task("train", total=total, completed=trainer.episode, status="starting SUMO")
+    progress = make_progress("training", total, "episodes", level=level, stderr=False)
+    progress.update(trainer.episode, "starting SUMO")
 
-        def show(row: dict) -> None:
-            rate = row["agent_steps"] / max(row["wall_s"], 1e-9)
-            progress.update(
-                task,
-                advance=1,
-                status=(
-                    f"reward {row['reward_sum']:9.0f}  colliding {row['colliding_steps_pct']:5.1f}%  "
-                    f"speed {100 * row['mean_speed_frac']:3.0f}%  {rate:6.0f} agent-steps/s"
-                ),
-            )
+    def show(row: dict) -> None:
+        detail = episode_detail(row)
+        progress.update(trainer.episode, detail)
+        if level > 0:
+            typer.echo(f"episode {trainer.episode}/{total}: {detail}", err=True)
 
-        try:
-            trainer.run(show)
-        except KeyboardInterrupt:  # a second Ctrl-C: the last finished episode's state is saved
-            trainer.stop_signal = signal.SIGINT
+    try:
+        trainer.run(show)
+    except KeyboardInterrupt:  # a second Ctrl-C: the last finished episode's state is saved
+        trainer.stop_signal = signal.SIGINT
+    finally:
+        progress.close()
     resume_with = f"continue with: behave train {trainer.config.env.behaviour} --resume {run_dir}"
     done = f"{trainer.episode} of {total} episodes in {run_dir}"
     if trainer.stop_signal is not None:
         name = signal.Signals(trainer.stop_signal).name
         print(f"behave: {name} stopped training after {done}; {resume_with}", file=sys.stderr)
         sys.exit(128 + trainer.stop_signal)  # 130 for Ctrl-C, 143 for SIGTERM, as a shell reports them
+    if level < 0:
+        return
     if trainer.episode < total:
         typer.echo(f"stopped at the --max-minutes budget after {done}; {resume_with}")
     else:
         typer.echo(f"done: {done}")
+
+
+def episode_detail(row: dict) -> str:
+    """One finished episode in a few figures: return, colliding share, speed and throughput."""
+    rate = row["agent_steps"] / max(row["wall_s"], 1e-9)
+    return (
+        f"reward {row['reward_sum']:.0f}, colliding {row['colliding_steps_pct']:.1f}%, "
+        f"speed {100 * row['mean_speed_frac']:.0f}%, {rate:.0f} agent-steps/s"
+    )
 
 
 def parse_sizes(text: str) -> tuple[int, ...]:

@@ -89,6 +89,37 @@ def test_verbose_populate_shows_phase_timings(tmp_path: Path):
     assert "-q/--quiet and -v/--verbose" in behave("populate", "-q", "-v").stderr
 
 
+def test_train_in_a_log_prints_a_line_per_tenth_and_one_per_episode_with_v(tmp_path: Path):
+    args = ("train", "lanekeeping", "--scenario", "tiny", "--agents", "1", "--episodes", "2",
+            "--max-steps", "10", "--warmup", "5", "--batch-size", "4")  # fmt: skip
+    done = behave(*args, "--out", str(tmp_path / "a"))
+    assert done.returncode == 0, done.stderr
+    progress = [line for line in done.stderr.splitlines() if line.startswith("training: ")]
+    assert [line.split(" (")[0] for line in progress] == ["training: 1/2 episodes", "training: 2/2 episodes"]
+    assert "reward " in progress[-1] and "done: 2 of 2 episodes" in done.stdout
+    done = behave(*args, "--out", str(tmp_path / "b"), "-v")
+    episodes = [line for line in done.stderr.splitlines() if line.startswith("episode ")]
+    assert done.returncode == 0 and [line.split(":")[0] for line in episodes] == [
+        "episode 1/2",
+        "episode 2/2",
+    ]
+    done = behave(*args, "--out", str(tmp_path / "c"), "-q")
+    assert (done.returncode, done.stdout, done.stderr) == (0, "", "")
+    assert (tmp_path / "c" / "metrics.csv").is_file()
+
+
+def test_quiet_evaluate_writes_its_files_and_prints_nothing(tmp_path: Path):
+    args = ("evaluate", "lanekeeping", "--agents", "1", "--episodes", "1", "--max-steps", "20",
+            "--scenario", "tiny", "--no-realism")  # fmt: skip
+    done = behave(*args, "--out", str(tmp_path / "q"), "-q")
+    assert (done.returncode, done.stdout, done.stderr) == (0, "", "")
+    assert (tmp_path / "q" / "results.csv").is_file()
+    done = behave(*args, "--out", str(tmp_path / "v"), "-v")
+    assert done.returncode == 0 and re.search(
+        r"^  lanekeeping 1 agents?: .*progress/agent", done.stdout, re.M
+    ), done.stdout
+
+
 # Ctrl-C -----------------------------------------------------------------------------------------
 
 

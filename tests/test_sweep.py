@@ -186,6 +186,12 @@ def test_a_killed_sweep_started_again_runs_only_the_missing_points(swept):
     points = expand(Grid(sumocfgs=(kept["scenario_path"],), shares=SHARES, seeds=SEEDS))
     again = run_sweep(points, out, workers=2)  # nothing left: no Ray is started
     assert (again.ran, again.skipped) == (0, 6)
+    quiet = subprocess.run(
+        [sys.executable, "-m", "behaviors.cli", "sweep", "--sumocfg", kept["scenario_path"], "--share",
+         ",".join(map(str, SHARES)), "--seeds", ",".join(map(str, SEEDS)), "--out", str(out), "-q"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert (quiet.returncode, quiet.stdout, quiet.stderr) == (0, "", "")
 
 
 def test_the_share_0_rows_are_a_plain_sumo_runs_figures(swept, scenario, tmp_path):
