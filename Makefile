@@ -23,9 +23,10 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/pip install $(PIP_FLAGS) -e .
 	touch $(STAMP)
 
-# what the tests, the type check and the linter use: pytest, ruff, mypy, the RL integrations, Ray
+# what the tests, the type check and the linter use: pytest, ruff, mypy, the RL integrations, Ray,
+# and the ffmpeg the MP4 test needs
 $(DEV_STAMP): $(STAMP)
-	$(BIN)/pip install $(PIP_FLAGS) -e '.[dev,integrations,distributed]'
+	$(BIN)/pip install $(PIP_FLAGS) -e '.[dev,integrations,distributed,video]'
 	touch $(DEV_STAMP)
 
 run: $(STAMP)

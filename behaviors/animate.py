@@ -56,12 +56,28 @@ def check_animation_output(out: Path) -> None:
     suffix = out.suffix.lower()
     if suffix not in ANIMATION_SUFFIXES:
         raise BehaveError(f"animation output must end in {' or '.join(ANIMATION_SUFFIXES)}: {out}")
-    if suffix == ".mp4":
-        from matplotlib.animation import FFMpegWriter
-
-        if not FFMpegWriter.isAvailable():
-            raise BehaveError(f"cannot write {out}: MP4 needs ffmpeg, which is not on PATH (write a .gif)")
+    if suffix == ".mp4" and not ffmpeg_found():
+        raise BehaveError(
+            f"cannot write {out}: MP4 needs ffmpeg on PATH or the video extra "
+            "(pip install 'behave-traffic[video]'); or write a .gif"
+        )
     check_output_path(out)
+
+
+def ffmpeg_found() -> bool:
+    """Whether matplotlib can run ffmpeg: the one on PATH, else the binary the imageio-ffmpeg wheel
+    (the `video` extra) carries, which needs no system package."""
+    import matplotlib
+    from matplotlib.animation import FFMpegWriter
+
+    if FFMpegWriter.isAvailable():
+        return True
+    try:
+        import imageio_ffmpeg
+    except ImportError:
+        return False
+    matplotlib.rcParams["animation.ffmpeg_path"] = imageio_ffmpeg.get_ffmpeg_exe()
+    return FFMpegWriter.isAvailable()
 
 
 def frame_times(first: float, last: float, every: float) -> np.ndarray:
@@ -266,6 +282,7 @@ def movie_writer(out: Path, fps: int) -> Any:
         return PaletteGifWriter(fps=fps)
     from matplotlib.animation import FFMpegWriter
 
+    ffmpeg_found()  # points matplotlib at the video extra's ffmpeg where PATH has none
     return FFMpegWriter(fps=fps, codec="libx264", extra_args=["-pix_fmt", "yuv420p"])
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import shutil
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -26,8 +26,10 @@ BEHAVE = [sys.executable, "-m", "behaviors.cli"]
 DURATION = 10.0
 
 
-def behave(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*BEHAVE, *args], capture_output=True, text=True, timeout=300, cwd=cwd)
+def behave(
+    *args: str, cwd: Path | None = None, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*BEHAVE, *args], capture_output=True, text=True, timeout=300, cwd=cwd, env=env)
 
 
 @pytest.fixture(scope="module")
@@ -165,14 +167,20 @@ def test_bad_input_is_one_line_and_writes_nothing(fcd: Path, tmp_path: Path):
     assert list(tmp_path.glob("x.*")) == []
 
 
-@pytest.mark.skipif(shutil.which("ffmpeg") is not None, reason="ffmpeg is installed: MP4 works")
 def test_mp4_without_ffmpeg_says_why(fcd: Path, tmp_path: Path):
-    assert "ffmpeg" in one_error(behave("animate", str(fcd), "--out", str(tmp_path / "run.mp4")))
+    """PATH without ffmpeg and the video extra hidden (a Python that cannot import it)."""
+    hide = tmp_path / "hide"
+    (hide / "imageio_ffmpeg").mkdir(parents=True)
+    (hide / "imageio_ffmpeg" / "__init__.py").write_text("raise ImportError('hidden')")
+    env = {**os.environ, "PATH": str(Path(sys.executable).parent), "PYTHONPATH": str(hide)}
+    message = one_error(behave("animate", str(fcd), "--out", str(tmp_path / "run.mp4"), env=env))
+    assert "ffmpeg" in message and "video" in message
     assert not (tmp_path / "run.mp4").exists()
 
 
-@pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="MP4 needs ffmpeg")
-def test_mp4_with_ffmpeg(fcd: Path, tmp_path: Path):
+def test_mp4_with_the_video_extras_ffmpeg(fcd: Path, tmp_path: Path):
+    pytest.importorskip("imageio_ffmpeg", reason="the video extra (make test installs it)")
     done = behave("animate", str(fcd), "--out", str(tmp_path / "run.mp4"), "--every", "2")
     assert done.returncode == 0, done.stderr
-    assert (tmp_path / "run.mp4").stat().st_size > 0
+    header = (tmp_path / "run.mp4").read_bytes()[:12]
+    assert header[4:8] == b"ftyp"  # an ISO media file, as ffmpeg writes MP4
