@@ -73,6 +73,9 @@ CAR_FOOTPRINT = 15.0
 """Metres of lane one car needs (length + gaps at speed) when checking what a net can hold."""
 INSERT_CLEARANCE = 6.0
 """m between a newly inserted car's front and any other's, or it is withdrawn and put elsewhere."""
+INSERT_DECEL = 4.0
+"""m/s^2: nor may a car be put down so close to another that, braking this hard, it would not match
+speeds before the clearance is used up (SUMO's check misses a learned car crossing into the lane)."""
 DEFAULT_POLICY = PRETRAINED / "traffic.pt"
 
 
@@ -586,7 +589,9 @@ class Population:
         placed = [v for v in self.pending if v in present]
         assert self.vehicles is not None
         rows = np.array([present[v] for v in placed], np.int64)
-        beside = crowded(self.vehicles.position, rows, INSERT_CLEARANCE).tolist()
+        beside = crowded(
+            self.vehicles.position, self.vehicles.speed, rows, INSERT_CLEARANCE, INSERT_DECEL
+        ).tolist()
         joined = [v for v, near in zip(placed, beside, strict=True) if not near]
         put_beside = [v for v, near in zip(placed, beside, strict=True) if near]
         self.vehicles = self.vehicles.without(put_beside)  # withdrawn below: nobody senses them

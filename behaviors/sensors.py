@@ -324,12 +324,21 @@ def _flat_cell(
     return x * rows + y
 
 
-def crowded(position: np.ndarray, rows: np.ndarray, radius: float) -> np.ndarray:
-    """[len(rows)] bool: whether another vehicle's front lies within `radius` of the front of each
-    vehicle in `rows` (of `position` [M, 2]). SUMO inserts a car where its lane is free but does not
-    see a learned car moving over from the next lane: a car put down beside one was hit within a
-    second, so populate puts it elsewhere."""
-    q, _, _, _, _ = neighbours(position[rows], position, radius, rows)
+def crowded(
+    position: np.ndarray, speed: np.ndarray, rows: np.ndarray, clearance: float, decel: float
+) -> np.ndarray:
+    """[len(rows)] bool: whether another vehicle's front lies within `clearance` of the front of each
+    vehicle in `rows` (of `position` [M, 2], `speed` [M]), or within the distance in which the two
+    would close up at their speed difference braking at `decel`. SUMO inserts a car where its lane is
+    free but does not see a learned car moving over from the next lane: a car put down beside one, or
+    fast just behind one that was crossing into its lane, was hit within a second, so populate puts it
+    elsewhere. Direction is not known here, so a fast car put down ahead of a slow one is moved too."""
+    if len(rows) == 0:
+        return np.zeros(0, bool)
+    reach = clearance + float(np.ptp(speed)) ** 2 / (2 * decel)  # the largest distance that can matter
+    q, m, _, _, square = neighbours(position[rows], position, reach, rows)
+    closing = np.abs(speed[rows][q] - speed[m])
+    close = np.sqrt(square) < clearance + closing**2 / (2 * decel)
     out = np.zeros(len(rows), bool)
-    out[q] = True
+    out[q[close]] = True
     return out

@@ -75,15 +75,16 @@ def sha256(path: Path) -> str:
 
 
 RECORDED = {
-    "highway_traffic": "a0392c9ddb5e179db3a784947dd93d515724c9b1414a0a1673444a8e99f62950",
-    "highway_paper": "c71e6c70a84e8053750d5bd1770a37bf2f5095115cadc1eb75e33580b00da5d3",
+    "highway_traffic": "46732e643114da5fdd241740807e1ddcc745ddb1eca4b2b5df1f117d102209bc",
+    "highway_paper": "f876be09976669d563b3e5a2ac0c64b729ed06f263c583d821725f16b5698198",
     "share_lanedrop": "f89fb241c186bbb7c738534a8236a99456a32521ebdddbf0f07b850a6a81d479",
 }
 """sha256 of each case's FCD (csv), recorded on the code before the driver became one object (the
 traffic case again when lane changes began to wait for an acceptable gap, and both traffic-driver
 cases when the driver began to keep the rules of the road, and again when agents wanted speeds
-nearer the limit, began no lane change inside a junction and let cars in from an ending lane: a
-change of behaviour on purpose is a new recording, in the same commit)."""
+nearer the limit, began no lane change inside a junction and let cars in from an ending lane;
+both highway cases when populate stopped putting cars down fast just behind a slower one: a change
+of behaviour on purpose is a new recording, in the same commit)."""
 
 
 def run_case(case: str, tmp_path: Path) -> Path:

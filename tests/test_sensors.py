@@ -281,6 +281,18 @@ def test_a_car_put_down_beside_another_is_crowded():
 
     position = np.array([[0.0, 0.0], [3.0, 2.0], [40.0, 0.0], [43.0, 3.5], [100.0, 0.0]])
     # new cars: row 1 (3.6 m from row 0's front), row 3 (4.6 m from row 2's), row 4 (alone)
-    assert crowded(position, np.array([1, 3, 4]), 6.0).tolist() == [True, True, False]
-    assert crowded(position, np.array([1, 3, 4]), 4.0).tolist() == [True, False, False]
-    assert crowded(position, np.array([], np.int64), 6.0).tolist() == []
+    same = np.full(5, 20.0)
+    assert crowded(position, same, np.array([1, 3, 4]), 6.0, 4.0).tolist() == [True, True, False]
+    assert crowded(position, same, np.array([1, 3, 4]), 4.0, 4.0).tolist() == [True, False, False]
+    assert crowded(position, same, np.array([], np.int64), 6.0, 4.0).tolist() == []
+
+
+def test_a_car_put_down_fast_behind_a_slow_one_in_the_next_lane_is_crowded():
+    """Measured on a curved motorway: an agent put down at 22.7 m/s 7 m behind one crossing into its
+    lane at 14 m/s hit it 2 s later. Closing 8.7 m/s at 4 m/s^2 takes 9.5 m on top of the 6 m."""
+    from behaviors.sensors import crowded
+
+    position = np.array([[0.0, 0.0], [-5.0, 3.75], [-40.0, 3.75]])
+    fast = np.array([14.0, 22.7, 22.7])
+    assert crowded(position, fast, np.array([1, 2]), 6.0, 4.0).tolist() == [True, False]
+    assert crowded(position, np.array([14.0, 15.0, 22.7]), np.array([1]), 6.0, 4.0).tolist() == [False]
