@@ -44,7 +44,7 @@ def test_make_run_installs_no_extras_and_make_test_installs_what_tests_use(tmp_p
     assert not any("[" in line for line in installs), installs  # no extras: no Ray, SB3, TorchRL, TensorBoard
     test = subprocess.run(["make", "-n", "test", f"VENV={venv}"], cwd=ROOT, capture_output=True, text=True,
                           check=True).stdout  # fmt: skip
-    assert "-e '.[dev,integrations,distributed]'" in test
+    assert "-e '.[dev,integrations,distributed,video]'" in test
 
 
 def test_version_and_policy_list(tmp_path: Path) -> None:
