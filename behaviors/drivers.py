@@ -34,6 +34,7 @@ from behaviors.lanes import (
     observe_lanes,
 )
 from behaviors.lanes import surroundings as lane_surroundings
+from behaviors.rewards import TERM_NAMES, TRAFFIC_TERM_NAMES
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT, AgentFrame, neighbours, observe
 from behaviors.sim import SumoSim
 
@@ -68,6 +69,8 @@ class PaperDriver:
     """Trains in the paper's formations on the bundled roads (paper_env.PaperEnv), not among traffic."""
     reward_scale = 0.01
     """The paper's rewards are ~100 per step (km/h): the critic sees them scaled by this."""
+    reward_terms = TERM_NAMES
+    """The named terms of its reward (rewards.step_rewards): what `reward_weights` may weigh."""
     exploration: ClassVar[dict[str, tuple[float, float, float]]] = {}
     """The learner's default Ornstein-Uhlenbeck noise."""
     normalisation = "angle/pi, rays/200 m, speeds km/h/300, wheel spin/100, rpm/10000"
@@ -146,6 +149,8 @@ class TrafficDriver:
     """Trains among SUMO's traffic on the family of training roads (traffic_env.TrafficEnv)."""
     reward_scale = 0.1
     """The traffic reward's terms are ~1 per step."""
+    reward_terms = TRAFFIC_TERM_NAMES
+    """The named terms of its reward (rewards.traffic_rewards): what `reward_weights` may weigh."""
     exploration: ClassVar[dict[str, tuple[float, float, float]]] = {
         "ou_theta": (0.15, 1.0, 1.0),
         "ou_sigma": (0.2, 0.1, 0.05),

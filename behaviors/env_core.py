@@ -12,7 +12,9 @@ picks one for a config.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -25,10 +27,10 @@ from behaviors.drivers import DRIVERS, make_driver
 from behaviors.errors import BehaveError
 from behaviors.geometry import RoadGeometry
 from behaviors.render import RENDER_MODES, check_render_mode, top_down
-from behaviors.rewards import StepTerms
+from behaviors.rewards import StepTerms, check_reward_weights
 from behaviors.sim import SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
-from sumo_scenarios import SCENARIO_NAMES, Scenario, get_scenario, route_edges
+from sumo_scenarios import SCENARIO_NAMES, Scenario, get_scenario
 
 BEHAVIOURS = ("lanekeeping", "overtaking", "multi")
 PLACEMENTS = ("A", "B", "C")
@@ -69,6 +71,16 @@ class EnvConfig:
     driver: str = "paper"  # "paper": TORCS state + the paper's reward; "traffic": lanes among SUMO traffic
     traffic_density: tuple[float, float] = (4.0, 30.0)  # traffic driver: SUMO cars per lane-km, drawn
     car: CarModel = field(default_factory=CarModel)
+    net: str | Path | None = (
+        None  # traffic driver: a user's .net.xml instead of `scenario`, SUMO's cars as drawn
+    )
+    sumocfg: str | Path | None = None  # traffic driver: a user's .sumocfg instead; its routes are SUMO's cars
+    reward_weights: Mapping[str, float] | None = None  # reward term name -> weight (others: 1)
+
+    @property
+    def own_road(self) -> bool:
+        """Whether the agents drive a user's net or sumocfg rather than a bundled scenario."""
+        return self.net is not None or self.sumocfg is not None
 
     def validate(self) -> None:
         if self.behaviour not in BEHAVIOURS:
@@ -77,7 +89,11 @@ class EnvConfig:
             raise BehaveError(f"unknown placement '{self.placement}' (choose from {', '.join(PLACEMENTS)})")
         if self.driver not in DRIVERS:
             raise BehaveError(f"unknown driver '{self.driver}' (choose from {', '.join(DRIVERS)})")
-        if make_driver(self.driver).among_traffic and self.scenario not in (*ROAD_FAMILIES, "ring"):
+        driver = make_driver(self.driver)
+        check_reward_weights(self.reward_weights or {}, driver.reward_terms, driver.name)
+        if self.own_road:
+            self._check_own_road(driver.among_traffic)
+        elif driver.among_traffic and self.scenario not in (*ROAD_FAMILIES, "ring"):
             raise BehaveError(
                 f"the {self.driver} driver trains on {', '.join(repr(f) for f in ROAD_FAMILIES)} or 'ring'"
             )
@@ -103,6 +119,18 @@ class EnvConfig:
             raise BehaveError(f"traffic density must be a range 0 <= low <= high, got {self.traffic_density}")
         if self.lane_weight < 0:
             raise BehaveError(f"lane weight must be >= 0, got {self.lane_weight}")
+
+    def _check_own_road(self, among_traffic: bool) -> None:
+        """A user's road: one of net or sumocfg, each the right kind of file, for a driver that
+        drives among traffic (the files themselves are read, and checked, when the env starts)."""
+        if not among_traffic:
+            raise BehaveError(
+                f"net= and sumocfg= need a driver that drives among traffic, not '{self.driver}'"
+            )
+        if self.net is not None and self.sumocfg is not None:
+            raise BehaveError("net= and sumocfg= both name a network: the sumocfg's net is used, drop net=")
+        if self.net is not None and Path(self.net).suffix == ".sumocfg":
+            raise BehaveError(f"net={self.net} is a SUMO configuration, not a network: pass it as sumocfg=")
 
     @property
     def n_agents(self) -> int:
@@ -176,14 +204,15 @@ class BehaveEnv(ParallelEnv):
     sim_extra: tuple[str, ...] = ()
     """More SUMO options, from the next episode on (`behave evaluate` records each episode's FCD)."""
 
-    def __init__(
-        self, config: EnvConfig, scenario: Scenario, geometry: RoadGeometry, render_mode: str | None = None
-    ) -> None:
+    scenario: Scenario
+    """The bundled road of this episode (set by the subclass; not on a user's road)."""
+    lap: list[str]
+    """Its route's edges, one lap."""
+
+    def __init__(self, config: EnvConfig, geometry: RoadGeometry, render_mode: str | None = None) -> None:
         self.render_mode = check_render_mode(render_mode)
         self.config = config
-        self.scenario = scenario
         self.geometry = geometry
-        self.lap = route_edges(scenario)
         self.slot_behaviour = config.behaviour_ids()
         self.possible_agents = [f"agent_{i}" for i in range(config.n_agents)]
         self._obs_space = make_driver(config.driver).observation_space(config.with_id)

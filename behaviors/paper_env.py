@@ -16,9 +16,9 @@ from behaviors.env_core import (
 )
 from behaviors.errors import BehaveError
 from behaviors.geometry import load_geometry
-from behaviors.rewards import NO_PROGRESS_SECONDS, race_positions, step_rewards
+from behaviors.rewards import NO_PROGRESS_SECONDS, race_positions, step_rewards, weigh
 from behaviors.sim import SimOptions, SumoSim, VehicleState
-from sumo_scenarios import Scenario, get_scenario
+from sumo_scenarios import Scenario, get_scenario, route_edges
 
 PASSIVE_SPEED = 20.0
 """m/s: maxSpeed of the behave_passive vType (the slower cars to overtake)."""
@@ -49,7 +49,8 @@ class PaperEnv(BehaveEnv):
     def __init__(self, config: EnvConfig, render_mode: str | None = None) -> None:
         config.validate()
         scenario = config.scenario if isinstance(config.scenario, Scenario) else get_scenario(config.scenario)
-        super().__init__(config, scenario, load_geometry(scenario.net), render_mode)
+        self.scenario, self.lap = scenario, route_edges(scenario)
+        super().__init__(config, load_geometry(scenario.net), render_mode)
         self._check_capacity()
 
     def reset_arrays(self, seed: int | None = None) -> np.ndarray:
@@ -90,7 +91,7 @@ class PaperEnv(BehaveEnv):
         lane_deviation = np.zeros(len(slots))
         if fleet.frame is not None and present.any():
             lane_deviation[present] = fleet.frame.lane_deviation
-        terms = step_rewards(
+        raw = step_rewards(
             speed,
             angle,
             self.slot_behaviour[slots],
@@ -102,6 +103,7 @@ class PaperEnv(BehaveEnv):
             lane_deviation,
             self.config.lane_weight,
         )
+        terms = weigh(raw, self.config.reward_weights)
         terminated = collided | off_track | no_progress
         truncated = ~terminated & (~present | (self.steps >= self.config.max_steps))
         self._leave(slots, present, terminated | truncated, contact)

@@ -61,8 +61,8 @@ from behaviors.files import atomic_path, check_output_path, temp_path
 from behaviors.geometry import CAR_CLASS, RoadGeometry, load_geometry
 from behaviors.interrupt import sigint_between_steps
 from behaviors.policy import PRETRAINED, Policy, load_policy
+from behaviors.routes import RoutePool, route_graph, too_close
 from behaviors.scenario_config import LATERAL_RESOLUTION, ScenarioConfig, read_sumocfg, share_draw
-from behaviors.sensors import crowded
 from behaviors.sim import SimOptions, SumoSim, VehicleState, check_display
 from behaviors.timing import PhaseTimer
 from behaviors.traffic_env import desired_fractions
@@ -71,11 +71,6 @@ from sumo_scenarios import get_scenario
 BACKGROUND_TYPE = "behave_background"
 CAR_FOOTPRINT = 15.0
 """Metres of lane one car needs (length + gaps at speed) when checking what a net can hold."""
-INSERT_CLEARANCE = 6.0
-"""m between a newly inserted car's front and any other's, or it is withdrawn and put elsewhere."""
-INSERT_DECEL = 4.0
-"""m/s^2: nor may a car be put down so close to another that, braking this hard, it would not match
-speeds before the clearance is used up (SUMO's check misses a learned car crossing into the lane)."""
 DEFAULT_POLICY = PRETRAINED / "traffic.pt"
 
 
@@ -146,82 +141,6 @@ def config_from(sumocfg: Path | None, **given: Any) -> PopulateConfig:
         values.update({k: v for k, v in defaults.items() if k not in values and v is not None})
         values.update({k: 0 for k in ("overtakers", "keepers", "background") if k not in values})
     return PopulateConfig(sumocfg=sumocfg, **values)
-
-
-@dataclass(frozen=True)
-class RouteGraph:
-    """Normal edges with at least two car lanes, and which of them a car can drive on to."""
-
-    edges: list[str]
-    length: np.ndarray  # [E] metres
-    lanes: np.ndarray  # [E] lanes a passenger car may use (not sidewalks, bus or bike lanes)
-    successors: list[list[int]]
-    start_cdf: np.ndarray  # [E] cumulative lane-metres: a route starts on an edge in proportion to them
-
-
-def route_graph(geometry: RoadGeometry) -> RouteGraph:
-    """The multi-lane car edges and the car connections between them (SUMO refuses a route whose
-    consecutive edges are linked only by, say, a bus lane's connections: "No connection")."""
-    edges = [e for e, info in geometry.edges.items() if info.normal and info.lanes >= 2]
-    index = {e: k for k, e in enumerate(edges)}
-    ahead = geometry.car_successors
-    successors = [sorted(index[to] for to in ahead.get(e, ()) if to in index) for e in edges]
-    length = np.array([geometry.edges[e].length for e in edges])
-    lanes = np.array([geometry.edges[e].lanes for e in edges])
-    return RouteGraph(
-        edges=edges, length=length, lanes=lanes, successors=successors, start_cdf=np.cumsum(length * lanes)
-    )
-
-
-def random_start(graph: RouteGraph, rng: np.random.Generator) -> int:
-    """An edge drawn in proportion to its car lane-metres."""
-    return int(np.searchsorted(graph.start_cdf, rng.random() * graph.start_cdf[-1], side="right"))
-
-
-def random_walk(
-    graph: RouteGraph, start: int, rng: np.random.Generator, min_length: float
-) -> tuple[str, ...]:
-    """A walk along multi-lane edges from `start` until long enough or a dead end."""
-    k = start
-    route, length = [k], graph.length[k]
-    while length < min_length and graph.successors[k]:
-        k = graph.successors[k][int(rng.integers(len(graph.successors[k])))]
-        route.append(k)
-        length += graph.length[k]
-    return tuple(graph.edges[i] for i in route)
-
-
-ROUTE_VARIANTS = 8
-"""Routes drawn per start edge, then reused. SUMO keeps every route it is given until the run
-ends: one new route per insertion (and per retry) grew populate by 0.24 MB per simulated second
-with 200 agents."""
-
-
-class RoutePool:
-    """Route ids for new vehicles: at most ROUTE_VARIANTS walks per start edge, each edge list
-    handed to SUMO once, so the routes SUMO holds are bounded by the net, not by the run."""
-
-    def __init__(
-        self, graph: RouteGraph, min_length: float, add: Callable[[str, tuple[str, ...]], None]
-    ) -> None:
-        self.graph = graph
-        self.min_length = min_length
-        self.add = add  # hands a new route to SUMO
-        self.by_start: dict[int, list[str]] = {}
-        self.by_edges: dict[tuple[str, ...], str] = {}
-
-    def draw(self, rng: np.random.Generator) -> str:
-        """A route id; a start edge's first walks are kept (repeats included, so reuse keeps their odds)."""
-        start = random_start(self.graph, rng)
-        kept = self.by_start.setdefault(start, [])
-        if len(kept) >= ROUTE_VARIANTS:
-            return kept[int(rng.integers(len(kept)))]
-        edges = random_walk(self.graph, start, rng, self.min_length)
-        if edges not in self.by_edges:
-            self.by_edges[edges] = f"behave_route_{len(self.by_edges)}"
-            self.add(self.by_edges[edges], edges)
-        kept.append(self.by_edges[edges])
-        return kept[-1]
 
 
 @dataclass
@@ -589,9 +508,7 @@ class Population:
         placed = [v for v in self.pending if v in present]
         assert self.vehicles is not None
         rows = np.array([present[v] for v in placed], np.int64)
-        beside = crowded(
-            self.vehicles.position, self.vehicles.speed, rows, INSERT_CLEARANCE, INSERT_DECEL
-        ).tolist()
+        beside = too_close(self.vehicles, rows).tolist()
         joined = [v for v, near in zip(placed, beside, strict=True) if not near]
         put_beside = [v for v, near in zip(placed, beside, strict=True) if near]
         self.vehicles = self.vehicles.without(put_beside)  # withdrawn below: nobody senses them

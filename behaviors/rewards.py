@@ -19,10 +19,14 @@ also makes SUMO's sublane model work harder for everyone around them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Protocol
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Protocol, TypeVar
 
 import numpy as np
+
+from behaviors.errors import BehaveError
 
 COLLISION_PENALTY = -1000.0
 OFF_TRACK_PENALTY = -1000.0
@@ -47,6 +51,24 @@ class StepTerms(Protocol):
     def as_dict(self) -> dict[str, np.ndarray]: ...
 
 
+class RewardWeightError(BehaveError):
+    """A reward weight for a term the driver's reward does not have, or one that is not finite."""
+
+
+def check_reward_weights(weights: Mapping[str, float], terms: Sequence[str], driver: str) -> None:
+    """RewardWeightError unless every weight names one of `terms` and is a finite number: a
+    misspelled term would otherwise be ignored silently."""
+    unknown = sorted(set(weights) - set(terms))
+    if unknown:
+        raise RewardWeightError(
+            f"no reward term {', '.join(map(repr, unknown))} in the {driver} driver's reward "
+            f"(its terms: {', '.join(terms)})"
+        )
+    for name, weight in weights.items():
+        if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not math.isfinite(weight):
+            raise RewardWeightError(f"reward weight of '{name}' must be a finite number, got {weight!r}")
+
+
 @dataclass(frozen=True)
 class RewardTerms:
     """Per-agent reward terms of one step; `total` is their sum."""
@@ -64,6 +86,10 @@ class RewardTerms:
 
     def as_dict(self) -> dict[str, np.ndarray]:
         return {name: getattr(self, name) for name in TERM_NAMES}
+
+    def weighted(self, weights: Mapping[str, float]) -> RewardTerms:
+        """The terms each times its weight (terms not named keep weight 1)."""
+        return replace(self, **{name: getattr(self, name) * w for name, w in weights.items()})
 
 
 def lanekeeping_reward(speed: np.ndarray, angle: np.ndarray) -> np.ndarray:
@@ -184,6 +210,10 @@ class TrafficTerms:
     def as_dict(self) -> dict[str, np.ndarray]:
         return dict(self.values)
 
+    def weighted(self, weights: Mapping[str, float]) -> TrafficTerms:
+        """The terms each times its weight (terms not named keep weight 1)."""
+        return TrafficTerms({name: value * weights.get(name, 1.0) for name, value in self.values.items()})
+
 
 def traffic_rewards(step: TrafficStep, w: TrafficWeights) -> TrafficTerms:
     v = step.speed
@@ -225,3 +255,12 @@ def traffic_rewards(step: TrafficStep, w: TrafficWeights) -> TrafficTerms:
         "no_progress": -w.no_progress * step.no_progress,
     }
     return TrafficTerms({k: np.asarray(x, float) for k, x in values.items()})
+
+
+Terms = TypeVar("Terms", RewardTerms, TrafficTerms)
+
+
+def weigh(terms: Terms, weights: Mapping[str, float] | None) -> Terms:
+    """The terms times their weights (`reward_weights`); without weights the same terms, untouched,
+    so that the default reward stays bit for bit what it was."""
+    return terms.weighted(weights) if weights else terms

@@ -12,7 +12,9 @@ behaviour id and their desired speed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -29,9 +31,12 @@ from behaviors.env_core import (
 )
 from behaviors.errors import BehaveError
 from behaviors.geometry import RoadGeometry, load_geometry
-from behaviors.rewards import NO_PROGRESS_SECONDS, TrafficStep, TrafficWeights, traffic_rewards
+from behaviors.rewards import NO_PROGRESS_SECONDS, TrafficStep, TrafficWeights, traffic_rewards, weigh
+from behaviors.routes import RouteGraph, RoutePool, lane_km, route_graph, too_close
+from behaviors.scenario_config import LATERAL_RESOLUTION, ScenarioConfig, read_sumocfg
 from behaviors.sim import SimOptions, SumoSim
-from sumo_scenarios import Scenario, get_scenario, route_edges, training_roads
+from sumo_scenarios import Scenario, data_dir, get_scenario, route_edges, training_roads
+from sumo_scenarios.build import VTYPES_FILE
 
 DESIRED_SPEED = {0.0: (0.85, 1.0), 1.0: (0.95, 1.0)}
 """Desired speed as a fraction of the limit, drawn per agent: keepers (0) and overtakers (1). Drivers
@@ -137,21 +142,75 @@ def cars_ahead_per_lane(
     return sorted(k for _, k in nearest.values())
 
 
+VTYPES = data_dir() / "common" / VTYPES_FILE
+"""behave's vehicle types (agents, SUMO's background cars), added to a user's road."""
+
+
+@dataclass(frozen=True)
+class OwnRoad:
+    """A user's road: its net, read once, and the sumocfg whose routes bring SUMO's own traffic
+    (None: SUMO's cars come from the env, at the config's traffic density)."""
+
+    name: str
+    net: Path
+    geometry: RoadGeometry
+    graph: RouteGraph
+    scenario: ScenarioConfig | None
+
+
+def own_road(config: EnvConfig) -> OwnRoad:
+    """The config's net or sumocfg, read and checked (BehaveError for a missing or unreadable file
+    or a net without a multi-lane edge) before any SUMO runs."""
+    scenario = None if config.sumocfg is None else read_sumocfg(Path(config.sumocfg))
+    net = scenario.net if scenario is not None else Path(str(config.net))
+    geometry = load_geometry(net, cache=True)
+    name = (scenario.path if scenario is not None else net).name
+    return OwnRoad(name, net, geometry, route_graph(geometry), scenario)
+
+
+def own_road_options(road: OwnRoad, step_length: float, seed: int) -> SimOptions:
+    """SUMO's options on a user's road: a sumocfg runs with all its own options (its files named
+    again beside behave's vTypes), as `behave populate --sumocfg` runs it."""
+    options = SimOptions(net=road.net, additional=(VTYPES,), step_length=step_length, seed=seed)
+    scenario = road.scenario
+    if scenario is None:
+        return options
+    return replace(
+        options,
+        additional=(*scenario.additional, VTYPES),
+        routes=scenario.routes,
+        lateral_resolution=scenario.lateral_resolution or LATERAL_RESOLUTION,
+        extra=("--configuration-file", str(scenario.path)),
+    )
+
+
 class TrafficEnv(BehaveEnv):
     """Keepers and overtakers among SUMO's traffic (drivers that train among traffic)."""
 
     def __init__(self, config: EnvConfig, render_mode: str | None = None) -> None:
         config.validate()
+        self.own = own_road(config) if config.own_road else None
         self.roads: list[Scenario] = (
-            training_roads(ramps=config.scenario == TRAINING_ROADS_WITH_RAMPS)
+            []
+            if self.own is not None
+            else training_roads(ramps=config.scenario == TRAINING_ROADS_WITH_RAMPS)
             if config.scenario in ROAD_FAMILIES
             else [get_scenario(str(config.scenario))]
         )
-        self.queues = config.scenario == TRAINING_ROADS_WITH_QUEUES
+        self.queues = config.scenario == TRAINING_ROADS_WITH_QUEUES and self.own is None
         self._geometries: dict[str, RoadGeometry] = {}
-        super().__init__(config, self.roads[0], self._geometry(self.roads[0]), render_mode)
+        geometry = self.own.geometry if self.own is not None else self._geometry(self.roads[0])
+        super().__init__(config, geometry, render_mode)
+        self.road_name = self.own.name if self.own is not None else self.roads[0].name
         self.weights = TrafficWeights()
         self.progress = np.zeros(config.n_agents)
+
+    def assign_behaviours(self, behaviour_ids: np.ndarray) -> None:
+        """Behaviour id per slot (1 = overtaker) from the next episode on: the Gym env's multi draws
+        its car's behaviour per episode."""
+        if behaviour_ids.shape != self.slot_behaviour.shape:
+            raise ValueError(f"expected {self.slot_behaviour.shape} behaviour ids, got {behaviour_ids.shape}")
+        self.slot_behaviour = behaviour_ids.astype(float)
 
     def _geometry(self, road: Scenario) -> RoadGeometry:
         if road.name not in self._geometries:
@@ -173,8 +232,32 @@ class TrafficEnv(BehaveEnv):
         return self._start_episode()
 
     def _start_episode(self) -> np.ndarray:
+        if self.own is None:
+            self._start_on_training_road()
+        else:
+            self._start_on_own_road(self.own)
+        sim = self.sim
+        assert sim is not None
+        self.steps = 0
+        self.stop_and_go = plan_stop_and_go(self.agents, self.config.step_length, self._rng)
+        self.stopped: list[str] = []
+        vehicles = sim.read_vehicles()
+        self.live_obs = self.fleet.sense(sim, vehicles, True)
+        return self.live_obs
+
+    def _start_sim(self, options: SimOptions) -> SumoSim:
+        """SUMO started, or restarted (libsumo keeps one simulation per process), with `options`."""
+        if self.sim is None:
+            self.sim = SumoSim(options)
+        else:
+            self.sim.restart(options)
+        return self.sim
+
+    def _start_on_training_road(self) -> None:
+        """A road drawn from the family, looping routes filled with SUMO's cars, then the agents."""
         rng, cfg = self._rng, self.config
         self.scenario = self.roads[int(rng.integers(len(self.roads)))]
+        self.road_name = self.scenario.name
         self.geometry = self._geometry(self.scenario)
         self.lap = route_edges(self.scenario)
         options = SimOptions(
@@ -184,11 +267,7 @@ class TrafficEnv(BehaveEnv):
             step_length=cfg.step_length,
             seed=int(rng.integers(2**31 - 1)),
         )
-        if self.sim is None:
-            self.sim = SumoSim(options)
-        else:
-            self.sim.restart(options)
-        sim = self.sim
+        sim = self._start_sim(options)
         routes = self._routes()
         weights = np.array([self.geometry.edges[e].length for e in self.lap])
         weights /= weights.sum()
@@ -197,19 +276,34 @@ class TrafficEnv(BehaveEnv):
         count = int(rng.uniform(*cfg.traffic_density) * lap_km * lanes)
         if self.queues and rng.random() < CRAWL_EPISODES:
             self._add_queue(routes, weights)
-        for k, factor in enumerate(background_speed_factors(count, rng)):
-            vid = f"traffic_{k}"
-            sim.add_free_vehicle(vid, routes[int(rng.choice(len(routes), p=weights))], BACKGROUND_TYPE)
-            sim.set_speed_factor(vid, float(factor))
+        self._add_traffic(count, lambda: routes[int(rng.choice(len(routes), p=weights))])
         for _ in range(int(WARMUP_SECONDS / cfg.step_length)):
             sim.step()
         self._insert_agents(routes, weights)
-        self.steps = 0
-        self.stop_and_go = plan_stop_and_go(self.agents, cfg.step_length, rng)
-        self.stopped: list[str] = []
-        vehicles = sim.read_vehicles()
-        self.live_obs = self.fleet.sense(sim, vehicles, True)
-        return self.live_obs
+
+    def _start_on_own_road(self, road: OwnRoad) -> None:
+        """The user's net with SUMO's cars at a drawn density, or the user's sumocfg with its own
+        traffic; the agents on routes of multi-lane edges, put down as `behave populate` does."""
+        rng, cfg = self._rng, self.config
+        sim = self._start_sim(own_road_options(road, cfg.step_length, int(rng.integers(2**31 - 1))))
+        drive_s = WARMUP_SECONDS + cfg.max_steps * cfg.step_length
+        pool = RoutePool(road.graph, drive_s * 50.0, sim.add_route)  # long enough at 50 m/s, or a dead end
+        if road.scenario is None:
+            self._add_traffic(
+                int(rng.uniform(*cfg.traffic_density) * lane_km(road.graph)), lambda: pool.draw(rng)
+            )
+        for _ in range(int(WARMUP_SECONDS / cfg.step_length)):
+            sim.step()
+        self._place_agents(pool)
+
+    def _add_traffic(self, count: int, route: Callable[[], str]) -> None:
+        """`count` of SUMO's cars at free places on the routes `route` draws, some of them slow."""
+        sim = self.sim
+        assert sim is not None
+        for k, factor in enumerate(background_speed_factors(count, self._rng)):
+            vid = f"traffic_{k}"
+            sim.add_free_vehicle(vid, route(), BACKGROUND_TYPE)
+            sim.set_speed_factor(vid, float(factor))
 
     def _add_queue(self, routes: list[str], weights: np.ndarray) -> None:
         """A queue in the slow lane of one edge: SUMO's cars that crawl and never change lanes, so
@@ -247,12 +341,13 @@ class TrafficEnv(BehaveEnv):
 
     def _insert_agents(self, routes: list[str], weights: np.ndarray) -> None:
         """Agents at free places of the road, at the speed SUMO finds safe there."""
-        sim, cfg, rng = self.sim, self.config, self._rng
+        sim, rng = self.sim, self._rng
         assert sim is not None
         names = self.possible_agents
         for slot, name in enumerate(names):
-            vtype = OVERTAKER_TYPE if self.slot_behaviour[slot] else KEEPER_TYPE
-            sim.add_free_vehicle(name, routes[int(rng.choice(len(routes), p=weights))], vtype, speed="max")
+            sim.add_free_vehicle(
+                name, routes[int(rng.choice(len(routes), p=weights))], self._vtype(slot), speed="max"
+            )
         pending = set(names)
         for _ in range(INSERT_TRIES):
             sim.step()
@@ -260,18 +355,49 @@ class TrafficEnv(BehaveEnv):
             if not pending:
                 break
         sim.remove(sorted(pending))  # no free place this episode: the slot sits it out
-        slots = np.array([k for k, name in enumerate(names) if name not in pending], np.int64)
+        self._join(np.array([k for k, name in enumerate(names) if name not in pending], np.int64))
+
+    def _place_agents(self, pool: RoutePool) -> None:
+        """Agents put down as populate puts them: at free places of routes from `pool`, at the speed
+        SUMO finds safe there; one SUMO did not place, or placed too close to another car
+        (routes.too_close), is withdrawn and tried again elsewhere after the next step."""
+        sim, rng = self.sim, self._rng
+        assert sim is not None
+        names = self.possible_agents
+        waiting = list(range(len(names)))
+        for _ in range(INSERT_TRIES):
+            for slot in waiting:
+                sim.add_free_vehicle(names[slot], pool.draw(rng), self._vtype(slot), speed="max")
+            sim.step()
+            vehicles = sim.read_vehicles(with_distance=False)
+            placed = [slot for slot in waiting if names[slot] in vehicles.row]
+            close = too_close(vehicles, np.array([vehicles.row[names[s]] for s in placed], np.int64))
+            waiting = [s for s in waiting if names[s] not in vehicles.row]
+            waiting += [s for s, near in zip(placed, close.tolist(), strict=True) if near]
+            sim.remove([names[s] for s in waiting])
+            if not waiting:
+                break
+        self._join(np.array(sorted(set(range(len(names))) - set(waiting)), np.int64))
+
+    def _vtype(self, slot: int) -> str:
+        return OVERTAKER_TYPE if self.slot_behaviour[slot] else KEEPER_TYPE
+
+    def _join(self, slots: np.ndarray) -> None:
+        """The agents of `slots`, on the road now, join the fleet under the policy's control; the
+        others sit this episode out."""
+        sim, rng = self.sim, self._rng
+        assert sim is not None
         if not len(slots):
-            raise NoRoomError(f"no agent could be inserted on {self.scenario.name}: traffic too dense")
-        ids = [names[k] for k in slots]
+            raise NoRoomError(f"no agent could be inserted on {self.road_name}: traffic too dense")
+        ids = [self.possible_agents[k] for k in slots]
         sim.take_control(ids)
         behaviour = self.slot_behaviour[slots]
         self.fleet = self._new_fleet()
         self.fleet.add(ids, sim.read_speeds(ids), behaviour, desired_fractions(behaviour, rng))
         self.agents = ids
         self._live_slots = slots
-        self.progress = np.zeros(cfg.n_agents)
-        self.start_progress = np.zeros(cfg.n_agents)
+        self.progress = np.zeros(self.config.n_agents)
+        self.start_progress = np.zeros(self.config.n_agents)
 
     def step_arrays(self, actions: np.ndarray) -> StepBatch:
         """Act for the live agents (rows in `live_slots` order) and advance SUMO one step."""
@@ -302,23 +428,21 @@ class TrafficEnv(BehaveEnv):
         queueing = gap[:, 0] < QUEUE_GAP
         no_progress = (self._slow_time(present) >= NO_PROGRESS_SECONDS) & present & ~queueing
         speed = actuation.speed
-        terms = traffic_rewards(
-            TrafficStep(
-                speed=speed,
-                desired_speed=desired,
-                acceleration=(speed - before_speed) / dt,
-                lateral_acceleration=(actuation.lateral_speed - before_lateral) / dt,
-                lane_deviation=deviation,
-                lane_changed=changed,
-                behaviour_id=self.slot_behaviour[slots],
-                gap=gap,
-                other_speed=other,
-                collided=collided,
-                off_track=off_track,
-                no_progress=no_progress,
-            ),
-            self.weights,
+        step = TrafficStep(
+            speed=speed,
+            desired_speed=desired,
+            acceleration=(speed - before_speed) / dt,
+            lateral_acceleration=(actuation.lateral_speed - before_lateral) / dt,
+            lane_deviation=deviation,
+            lane_changed=changed,
+            behaviour_id=self.slot_behaviour[slots],
+            gap=gap,
+            other_speed=other,
+            collided=collided,
+            off_track=off_track,
+            no_progress=no_progress,
         )
+        terms = weigh(traffic_rewards(step, self.weights), self.config.reward_weights)
         terminated = collided | off_track | no_progress
         truncated = ~terminated & (~present | (self.steps >= self.config.max_steps))
         self._leave(slots, present, terminated | truncated, contact)

@@ -140,7 +140,7 @@ class TrainConfig:
         return getattr(self, part) if part else self
 
     def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
+        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True, default=str)  # paths as text
 
     @classmethod
     def from_json(cls, text: str) -> TrainConfig:

@@ -80,8 +80,10 @@ def test_reset_redraws_when_no_car_fits_then_says_so() -> None:
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"behaviour": "multi"}, "unknown behaviour 'multi'"),
+        ({"behaviour": "racing"}, "unknown behaviour 'racing'"),
         ({"scenario": "tiny"}, "unknown scenario 'tiny'"),
+        ({"max_step": 10}, "unknown setting 'max_step'"),
+        ({"agents": 2}, "drives one car of the traffic driver: agents"),
     ],
 )
 def test_bad_arguments_are_one_clear_error(kwargs: dict, message: str) -> None:

@@ -15,14 +15,13 @@ from behaviors.export import read_fcd
 from behaviors.geometry import load_geometry
 from behaviors.populate import (
     DEFAULT_POLICY,
-    ROUTE_VARIANTS,
     PopulateConfig,
     Population,
     end_reasons,
     partial_path,
     populate,
-    route_graph,
 )
+from behaviors.routes import ROUTE_VARIANTS, route_graph
 from behaviors.sumo_home import sumo_binary
 
 
