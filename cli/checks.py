@@ -52,19 +52,23 @@ NON_NEGATIVE = number()
 SEED = number(high=SEED_MAX)
 
 
-def net_or_name(param: typer.CallbackParam, value: Path | None) -> Path | None:
+def net_or_name(ctx: typer.Context, param: typer.CallbackParam, value: Path | None) -> Path | None:
     """`--net`: a SUMO net file or a bundled scenario's name (`behave scenario list`: `--net motorway`).
 
-    A .sumocfg is a whole scenario, not a net: the error points to --sumocfg.
+    A .sumocfg is a whole scenario, not a net: the error points to the command's --sumocfg, or to
+    populate's for a command without one.
     """
     if value is None:
         return None
     option = param.opts[0]
     if value.suffix == ".sumocfg":
-        raise BehaveError(
-            f"{option} {value} is a SUMO configuration, not a network: run it with "
-            f"`behave populate --sumocfg {value}`"
+        takes_sumocfg = any(p.name == "sumocfg" for p in ctx.command.params)
+        run = (
+            f"pass it as --sumocfg {value}"
+            if takes_sumocfg
+            else f"run it with `behave populate --sumocfg {value}`"
         )
+        raise BehaveError(f"{option} {value} is a SUMO configuration, not a network: {run}")
     if value.exists() or value.suffix or value.parent != Path("."):
         return value
     if value.name in SCENARIO_NAMES:
