@@ -152,7 +152,8 @@ class TrainConfig:
 
 
 ENV_OPTIONS = ("behaviour", "scenario", "agents", "overtakers", "keepers", "placement", "opponents",
-               "max_steps", "step_length", "seed", "lane_weight", "driver")  # fmt: skip
+               "max_steps", "step_length", "seed", "lane_weight", "driver", "net", "sumocfg",
+               "reward_weights")  # fmt: skip
 DDPG_OPTIONS = ("hidden", "batch_size", "gamma", "tau", "actor_lr", "critic_lr", "buffer_size", "warmup",
                 "explore_decay_steps")  # fmt: skip
 RUN_OPTIONS = ("algo", "episodes", "updates_per_step", "reward_scale", "checkpoint_every", "init",
@@ -597,6 +598,7 @@ def prepare_run(
     else:
         if (out / "state.pt").exists():
             raise BehaveError(f"{out} already holds a run: use --resume or another --out")
+        config.validate()  # a bad setting (a reward term, counts) leaves no run directory behind
     ensure_writable_dir(out)
     ensure_writable_dir(out / "checkpoints")
     if config.workers > 1:

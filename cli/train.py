@@ -10,7 +10,7 @@ from typing import Annotated
 
 import typer
 
-from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED, number
+from behaviors.cli.checks import NET, NON_NEGATIVE, POSITIVE, SEED, number
 from behaviors.cli.progress import QUIET, VERBOSE, make_progress, verbosity
 
 DEFAULTS = SimpleNamespace(
@@ -19,7 +19,7 @@ DEFAULTS = SimpleNamespace(
     hidden=(256, 256), batch_size=64, gamma=0.99, tau=0.001, actor_lr=1e-4, critic_lr=1e-3,
     buffer_size=100_000, warmup=1000, explore_decay_steps=100_000, batched_updates=False,
     algo="ps-ddpg", episodes=100, updates_per_step=None, reward_scale=None, checkpoint_every=10, init=None,
-    max_minutes=None, workers=1,
+    max_minutes=None, workers=1, net=None, sumocfg=None, reward_weights=None,
 )  # fmt: skip
 """Every setting of a run by option name (train.OPTIONS) with TrainConfig's default, spelled out so
 that `--help` needs no torch; a test keeps them TrainConfig().options()."""
@@ -69,6 +69,26 @@ def train(
             " roads+queues = the 5 with a queue in the slow lane in half the episodes"
         ),
     ] = DEFAULTS.scenario,
+    net: Annotated[
+        Path | None,
+        typer.Option(
+            help="traffic driver: train on your .net.xml (or a bundled scenario's name) instead of "
+            "--scenario, among SUMO's cars at densities drawn per episode",
+            callback=NET,
+        ),
+    ] = DEFAULTS.net,
+    sumocfg: Annotated[
+        Path | None,
+        typer.Option(help="traffic driver: train in your .sumocfg instead, its routes being SUMO's cars"),
+    ] = DEFAULTS.sumocfg,
+    reward_weights: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--reward-weight",
+            metavar="TERM=WEIGHT",
+            help="weigh a term of the driver's reward, e.g. speed=2 (repeatable; the others keep 1)",
+        ),
+    ] = DEFAULTS.reward_weights,
     out: Annotated[
         Path | None, typer.Option(help="run directory (default runs/BEHAVIOUR-ALGO-sSEED)")
     ] = None,
@@ -146,10 +166,14 @@ def train(
     level = verbosity(quiet, verbose)
     from behaviors.train import TrainConfig, prepare_run  # torch: only when training
 
+    check_road(net, sumocfg, driver)
     config = TrainConfig.from_options(**{
         **{name: given[name] for name in vars(DEFAULTS)},
         "episodes": DEFAULTS.episodes if episodes is None else episodes,
         "hidden": parse_sizes(hidden),
+        "net": None if net is None else net.resolve(),
+        "sumocfg": None if sumocfg is None else sumocfg.resolve(),
+        "reward_weights": parse_weights(reward_weights or []),
     })  # fmt: skip
     run_dir = resume or out or Path("runs") / f"{behaviour}-{algo}-s{seed}"
     trainer = prepare_run(
@@ -202,3 +226,39 @@ def parse_sizes(text: str) -> tuple[int, ...]:
     except ValueError:
         raise BehaveError(f"network sizes must be integers like 256,256, got '{text}'") from None
     return sizes
+
+
+def check_road(net: Path | None, sumocfg: Path | None, driver: str) -> None:
+    """--net and --sumocfg in the command's words (EnvConfig checks the same in Python's): one road,
+    for a driver that trains among traffic."""
+    from behaviors.drivers import make_driver
+    from behaviors.errors import BehaveError
+
+    if net is not None and sumocfg is not None:
+        raise BehaveError("--net and --sumocfg both name a network: the sumocfg's net is used, drop --net")
+    if (net is not None or sumocfg is not None) and not make_driver(driver).among_traffic:
+        option = "--net" if net is not None else "--sumocfg"
+        raise BehaveError(f"{option} trains among SUMO's traffic: add --driver traffic (the {driver} "
+                          "driver trains on the bundled scenarios)")  # fmt: skip
+
+
+def parse_weights(texts: list[str]) -> dict[str, float] | None:
+    """--reward-weight TERM=WEIGHT, each term once (the driver's reward checks the terms and that
+    the weights are finite); None when none is given: the default reward, untouched."""
+    from behaviors.errors import BehaveError
+
+    weights: dict[str, float] = {}
+    for text in texts:
+        term, sep, weight = text.partition("=")
+        term = term.strip()
+        if not sep or not term:
+            raise BehaveError(f"--reward-weight takes TERM=WEIGHT, e.g. speed=2, got '{text}'")
+        if term in weights:
+            raise BehaveError(f"--reward-weight gives '{term}' twice")
+        try:
+            weights[term] = float(weight)
+        except ValueError:
+            raise BehaveError(
+                f"--reward-weight {text}: the weight must be a number, got '{weight}'"
+            ) from None
+    return weights or None
