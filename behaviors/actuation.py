@@ -205,6 +205,10 @@ class LaneDriving:
     free_ahead_s: float = 3.0
     ending_lane_m: float = 350.0  # a change into a lane that stops leading on within max(this,
     ending_lane_s: float = 14.0  # this at speed) is no change: SUMO would take the car right back
+    leave_ending_m: float = 1000.0  # a car whose own lane stops leading on within max(this, this
+    leave_ending_s: float = (
+        30.0  # at speed) moves out where the gap allows, as drivers do from the first sign
+    )
     keep_right_reach: float = 1000.0  # m: a slow-side lane kept to leads on this far, and as far as the own
     polite_decel: float = 0.5  # m/s^2: keeping right asks no harder braking of the new follower
     min_time_headway: float = 1.1  # s: the policy's accel may not push the car closer behind its leader
@@ -397,6 +401,30 @@ def letting_in(
     return out
 
 
+def falling_in(
+    speed: np.ndarray,
+    desired_speed: np.ndarray,
+    gap: np.ndarray,
+    other_speed: np.ndarray,
+    waiting: np.ndarray,
+    lateral: LaneDriving,
+) -> np.ndarray:
+    """[N] the acceleration of a car that must leave its ending lane (`waiting` [N]: +1 to the fast
+    side, -1 to the slow side, 0 not waiting) and has no gap yet: it falls in behind the nearest car
+    ahead of or alongside it in that lane, as the car the through lane lets in does, braking no harder
+    than `safe_decel` (+inf where it is not waiting). Without this a car matched its speed to the
+    platoon beside it and reached the end of its lane still alongside, where it stood."""
+    rows = np.arange(len(speed))
+    column = np.where(waiting > 0, 2, 4)
+    leader_gap, leader_speed = gap[rows, column], other_speed[rows, column]
+    applies = (waiting != 0) & np.isfinite(leader_speed) & np.isfinite(leader_gap)
+    courtesy = replace(lateral.following, time_headway=lateral.let_in_headway)
+    follow = following_accel(
+        speed, desired_speed, np.where(applies, leader_gap, np.inf), np.nan_to_num(leader_speed), courtesy
+    )
+    return np.where(applies, np.maximum(follow, -lateral.safe_decel), np.inf)
+
+
 def lateral_profile(
     error: np.ndarray,
     lateral_speed: np.ndarray,
@@ -471,7 +499,8 @@ def actuate_lanes(
     if lateral.keep_right and lane_leads_on is not None:  # nor into a lane that ends before long
         soon = np.maximum(lateral.ending_lane_m, lateral.ending_lane_s * speed)
         acceptable &= lane_leads_on[:, 1:] >= soon[:, None]
-        ending = lane_leads_on[:, 0] < soon  # and out of the own lane, if it ends, while there is room
+        leave_within = np.maximum(lateral.leave_ending_m, lateral.leave_ending_s * speed)
+        ending = lane_leads_on[:, 0] < leave_within  # and out of the own lane, if it ends, early on
         leave = np.where(ending & (lane_leads_on[:, 1] >= soon), 1, 0)
         leave = np.where(ending & (leave == 0) & (lane_leads_on[:, 2] >= soon), -1, leave)
     free = slow_side_free(speed, gap, other_speed, lateral, lane_leads_on) if lateral.keep_right else None
@@ -510,6 +539,9 @@ def actuate_lanes(
             bound = np.minimum(
                 bound, letting_in(speed, desired_speed, gap, other_speed, lane_leads_on, lateral)
             )
+        if leave is not None:
+            waiting = np.where(heading == 0, leave, 0)
+            bound = np.minimum(bound, falling_in(speed, desired_speed, gap, other_speed, waiting, lateral))
         closest = replace(lateral.following, time_headway=lateral.min_time_headway)  # no tailgating
         bound = np.minimum(
             bound, following_accel(speed, desired_speed, gap[:, 0], other_speed[:, 0], closest)

@@ -16,6 +16,7 @@ from behaviors.actuation import (
     CarModel,
     LaneDriving,
     actuate_lanes,
+    falling_in,
     following_accel,
     gap_acceptable,
     lane_intent,
@@ -412,6 +413,31 @@ def test_a_car_ahead_in_a_lane_that_ends_is_let_in_and_one_alongside_is_passed()
     assert letting_in(speed, desired, *alongside, ends, ruled)[0] == np.inf
     through = np.array([[2000.0, 2000.0, 2000.0]])  # the slow-side lane leads on: nobody waits to merge
     assert letting_in(speed, desired, *waiting, through, ruled)[0] == np.inf
+
+
+def test_a_car_whose_lane_ends_falls_in_behind_the_car_beside_it_and_moves_out_a_kilometre_ahead():
+    ruled = LaneDriving()
+    speed, desired = np.array([25.0]), np.array([30.0])
+    beside = leaders_of(fast_lead=(2, 7.0, 25.0), fast_follow=(3, 11.0, 25.5))  # no gap: a platoon
+    to_fast = np.array([1])
+    brake = falling_in(speed, desired, *beside, to_fast, ruled)
+    assert -ruled.safe_decel <= brake[0] < -0.5  # drops back behind the car ahead in the target lane
+    assert falling_in(speed, desired, *beside, np.array([0]), ruled)[0] == np.inf  # not waiting
+    assert falling_in(speed, desired, *NO_LEADERS, to_fast, ruled)[0] == np.inf  # nobody there
+
+    def change_begins(leads_on: float, leaders=NO_LEADERS) -> tuple[int, float]:
+        out = actuate_lanes(
+            np.array([[0.0, 0.5, 0.0]]), speed, desired, *leaders, np.zeros(1), np.zeros(1),
+            np.zeros(1, int), np.zeros(1), np.array([3.5]), np.array([2]), np.array([0]), np.array([-3.5]),
+            np.array([5.25]), np.array([33.3]), 0.2, CarModel(), ruled,
+            lane_leads_on=np.array([[leads_on, np.inf, -1.0]]),
+        )  # fmt: skip
+        return int(out.changing[0]), float(out.actuation.speed[0])
+
+    assert change_begins(900.0)[0] == 1  # the own lane ends 900 m on: over to the fast side
+    assert change_begins(np.inf)[0] == 0  # it leads on: the rightmost lane is kept
+    waits, slower = change_begins(600.0, beside)
+    assert waits == 0 and slower < 25.0 - 0.4  # no gap yet: it waits, falling back to make one
 
 
 def test_no_lane_change_begins_inside_a_junction_but_one_under_way_goes_on():
