@@ -146,3 +146,42 @@ def test_supersuit_black_death_and_sb3_td3_learn_through_agents_leaving_at_diffe
     assert any(before == 1 for before, _ in rows)  # one agent drove on after the other left
     assert sum(1 for before, left in rows if before and not left) >= 2  # several episodes ended
     assert model.num_timesteps >= 300
+
+
+def test_sb3_parallel_vec_env_seed_sets_the_next_episode() -> None:
+    """`seed(s)` reaches the PettingZoo env's next reset: the same seed, the same first
+    observations; another seed, others (the env was made with seed 0 for all three)."""
+    pytest.importorskip("supersuit")
+    from behaviors.sb3 import sb3_parallel_vec_env
+
+    venv = sb3_parallel_vec_env(make_env("tiny", agents=2, max_steps=80, seed=0))
+    try:
+        firsts = []
+        for seed in (1, 1, 2):
+            venv.seed(seed)
+            firsts.append(venv.reset())
+    finally:
+        venv.close()
+    assert firsts[0].shape == (2, venv.observation_space.shape[0])
+    assert np.array_equal(firsts[0], firsts[1])
+    assert not np.array_equal(firsts[0], firsts[2])
+
+
+def test_td3_seed_0_on_sb3_parallel_vec_env_learns_the_same_twice() -> None:
+    """`TD3(..., seed=0)` on SuperSuit's vector env crashed ("'ConcatVecEnv' object has no attribute
+    'seed'"); on sb3_parallel_vec_env it runs, two runs learn the same weights and seed 1 others."""
+    pytest.importorskip("supersuit")
+    sb3 = pytest.importorskip("stable_baselines3")
+    from behaviors.sb3 import sb3_parallel_vec_env
+
+    def learned_checksum(seed: int) -> float:
+        venv = sb3_parallel_vec_env(make_env("tiny", agents=2, max_steps=80, seed=0))
+        try:
+            model = sb3.TD3("MlpPolicy", venv, learning_starts=100, train_freq=8, gradient_steps=2,
+                            policy_kwargs={"net_arch": [32, 32]}, seed=seed, device="cpu")  # fmt: skip
+            model.learn(total_timesteps=200)
+        finally:
+            venv.close()
+        return sum(float(p.detach().double().sum()) for p in model.policy.parameters())
+
+    assert learned_checksum(0) == learned_checksum(0) != learned_checksum(1)
