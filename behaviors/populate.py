@@ -61,7 +61,7 @@ from behaviors.files import atomic_path, check_output_path, temp_path
 from behaviors.geometry import CAR_CLASS, RoadGeometry, load_geometry
 from behaviors.interrupt import sigint_between_steps
 from behaviors.policy import PRETRAINED, Policy, load_policy
-from behaviors.routes import RoutePool, route_graph, too_close
+from behaviors.routes import RoutePool, misplaced, route_graph
 from behaviors.scenario_config import LATERAL_RESOLUTION, ScenarioConfig, read_sumocfg, share_draw
 from behaviors.sim import SimOptions, SumoSim, VehicleState, check_display
 from behaviors.timing import PhaseTimer
@@ -507,12 +507,12 @@ class Population:
         assert sim is not None
         placed = [v for v in self.pending if v in present]
         assert self.vehicles is not None
-        rows = np.array([present[v] for v in placed], np.int64)
-        beside = too_close(self.vehicles, rows).tolist()
-        joined = [v for v, near in zip(placed, beside, strict=True) if not near]
-        put_beside = [v for v, near in zip(placed, beside, strict=True) if near]
-        self.vehicles = self.vehicles.without(put_beside)  # withdrawn below: nobody senses them
-        failed = [v for v in self.pending if v not in present] + put_beside
+        agent = np.array([self.pending[v] != "background" for v in placed], bool)
+        withdraw = misplaced(sim, self.vehicles, placed, agent).tolist()
+        joined = [v for v, out in zip(placed, withdraw, strict=True) if not out]
+        withdrawn = [v for v, out in zip(placed, withdraw, strict=True) if out]
+        self.vehicles = self.vehicles.without(withdrawn)  # withdrawn below: nobody senses them
+        failed = [v for v in self.pending if v not in present] + withdrawn
         agents = [v for v in joined if self.pending[v] != "background"]
         if agents:
             behaviour = np.array([1.0 if self.pending[v] == "overtaker" else 0.0 for v in agents])

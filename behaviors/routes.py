@@ -13,14 +13,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviors.geometry import RoadGeometry
+from behaviors.handover import LANE_END_MARGIN
 from behaviors.sensors import crowded
-from behaviors.sim import VehicleState
+from behaviors.sim import SumoSim, VehicleState
 
 INSERT_CLEARANCE = 6.0
 """m between a newly inserted car's front and any other's, or it is withdrawn and put elsewhere."""
 INSERT_DECEL = 4.0
 """m/s^2: nor may a car be put down so close to another that, braking this hard, it would not match
 speeds before the clearance is used up (SUMO's check misses a learned car crossing into the lane)."""
+INSERT_LANE_RUN = 400.0
+INSERT_LANE_RUN_S = 16.0
+"""Nor an agent in a lane that stops leading on along its route within max(this m, this s at its
+speed) while another lane of its edge goes on: put down at the end of a dropping lane, it stood
+there and the lane queued behind it (the policies merge out over the last 350 m, not from rest)."""
 
 
 @dataclass(frozen=True)
@@ -108,3 +114,21 @@ def too_close(vehicles: VehicleState, rows: np.ndarray) -> np.ndarray:
     """Which of the cars SUMO just placed (`rows` of `vehicles`) must be withdrawn and put elsewhere:
     within INSERT_CLEARANCE of another, or too close to match its speed braking at INSERT_DECEL."""
     return crowded(vehicles.position, vehicles.speed, rows, INSERT_CLEARANCE, INSERT_DECEL)
+
+
+def lane_runs_out(own_run: np.ndarray, best_run: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """[N] bool: newly placed agents whose lane stops leading on too soon (INSERT_LANE_RUN) while
+    their edge's best lane goes on further (a lane that ends, not the end of the route)."""
+    soon = np.maximum(INSERT_LANE_RUN, INSERT_LANE_RUN_S * speed)
+    return (own_run < soon) & (best_run > own_run + LANE_END_MARGIN)
+
+
+def misplaced(sim: SumoSim, vehicles: VehicleState, ids: list[str], agent: np.ndarray) -> np.ndarray:
+    """[N] bool: which of the cars SUMO just placed (`ids`; `agent` [N] marks the learned ones) are
+    withdrawn and put elsewhere: too close to another car, or an agent in a lane that runs out."""
+    rows = np.array([vehicles.row[v] for v in ids], np.int64)
+    out = too_close(vehicles, rows)
+    if agent.any():
+        runs = np.array([sim.lane_runs_ahead(v) for v, a in zip(ids, agent, strict=True) if a])
+        out[agent] |= lane_runs_out(runs[:, 0], runs[:, 1], vehicles.speed[rows[agent]])
+    return out

@@ -32,7 +32,7 @@ from behaviors.env_core import (
 from behaviors.errors import BehaveError
 from behaviors.geometry import RoadGeometry, load_geometry
 from behaviors.rewards import NO_PROGRESS_SECONDS, TrafficStep, TrafficWeights, traffic_rewards, weigh
-from behaviors.routes import RouteGraph, RoutePool, lane_km, route_graph, too_close
+from behaviors.routes import RouteGraph, RoutePool, lane_km, misplaced, route_graph
 from behaviors.scenario_config import LATERAL_RESOLUTION, ScenarioConfig, read_sumocfg
 from behaviors.sim import SimOptions, SumoSim
 from sumo_scenarios import Scenario, data_dir, get_scenario, route_edges, training_roads
@@ -359,8 +359,8 @@ class TrafficEnv(BehaveEnv):
 
     def _place_agents(self, pool: RoutePool) -> None:
         """Agents put down as populate puts them: at free places of routes from `pool`, at the speed
-        SUMO finds safe there; one SUMO did not place, or placed too close to another car
-        (routes.too_close), is withdrawn and tried again elsewhere after the next step."""
+        SUMO finds safe there; one SUMO did not place, or placed too close to another car or in a
+        lane that runs out (routes.misplaced), is withdrawn and tried again elsewhere after the next step."""
         sim, rng = self.sim, self._rng
         assert sim is not None
         names = self.possible_agents
@@ -371,7 +371,8 @@ class TrafficEnv(BehaveEnv):
             sim.step()
             vehicles = sim.read_vehicles(with_distance=False)
             placed = [slot for slot in waiting if names[slot] in vehicles.row]
-            close = too_close(vehicles, np.array([vehicles.row[names[s]] for s in placed], np.int64))
+            ids = [names[s] for s in placed]
+            close = misplaced(sim, vehicles, ids, np.ones(len(ids), bool))
             waiting = [s for s in waiting if names[s] not in vehicles.row]
             waiting += [s for s, near in zip(placed, close.tolist(), strict=True) if near]
             sim.remove([names[s] for s in waiting])

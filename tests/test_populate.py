@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 import torch
 
-from behaviors.agents_table import INCIDENT_COLUMNS, columns
+from behaviors.agents_table import INCIDENT_COLUMNS, agents_path, columns
 from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.ddpg.networks import Actor
 from behaviors.errors import BehaveError
@@ -29,7 +29,9 @@ from behaviors.populate import (
     populate_policy,
     use_bfloat16,
 )
+from behaviors.routes import INSERT_LANE_RUN, lane_runs_out
 from behaviors.sumo_home import sumo_binary
+from sumo_scenarios.osm_like import Chain, run_netconvert, write_plain
 
 
 def policy_file(tmp: Path, obs_dim: int, behaviour: str) -> Path:
@@ -304,3 +306,23 @@ def test_every_collision_and_off_track_is_explained_in_the_agents_table(tmp_path
     assert crashed["incident_headway_s"].notna().eq(~beside).all()
     quiet = table[~table.end_reason.isin(["collision", "off_track"])]
     assert quiet[list(INCIDENT_COLUMNS)].isna().all().all()
+
+
+def test_no_agent_is_put_down_in_a_lane_that_ends_before_it_could_merge_out(tmp_path):
+    """A lane drop (4 -> 3 lanes after 800 m): no agent starts in the right lane's last
+    INSERT_LANE_RUN metres (one put at the end of a dropping lane stood there and the lane queued)."""
+    chain = Chain()
+    chain.way("wide", 4, [(800.0, 0.0)], 3.75)
+    chain.way("narrow", 3, [(800.0, 0.0)], 3.75)
+    write_plain(tmp_path, "drop", chain.ways, [("wide", "narrow", i + 1, i) for i in range(3)])
+    net = run_netconvert(tmp_path, "drop", lefthand=False)
+    fcd = tmp_path / "fcd.parquet"
+    summary = populate(PopulateConfig(net=net, overtakers=30, keepers=30, duration=40.0, fcd=fcd, seed=0))
+    first = read_fcd(fcd).sort_values("time").groupby("id").first()
+    first = first[first.index.isin(pd.read_csv(agents_path(fcd))["id"])]  # withdrawn ones left no row
+    assert len(first) >= 40 and summary.insert_retries > 0
+    dropping = first[first["lane"] == "wide_0"]
+    assert len(dropping) and (dropping["pos"] <= 800.0 - INSERT_LANE_RUN).all(), dropping[["pos", "speed"]]
+    left, best = np.array([399.0, 399.0, 900.0]), np.array([2000.0, 405.0, 2000.0])
+    # 399 m left in a lane that ends while another goes on; the route ends there; room to merge out
+    assert lane_runs_out(left, best, np.zeros(3)).tolist() == [True, False, False]
