@@ -10,6 +10,8 @@ from pathlib import Path
 import gymnasium
 import numpy as np
 import pytest
+from gymnasium.utils.env_checker import check_env
+from pettingzoo.test import parallel_api_test
 
 from behaviors.env import make_env
 from behaviors.errors import BehaveError
@@ -108,6 +110,21 @@ def test_pettingzoo_env_runs_a_sumocfg_with_its_own_traffic(motorway: OsmLikeNet
             env.step({a: FORWARD for a in env.agents})
     finally:
         env.close()
+
+
+def test_the_envs_on_a_users_road_pass_the_library_checks(motorway: OsmLikeNet) -> None:
+    """Gymnasium's check_env on net= (seeded resets and steps repeat, spaces honoured) and
+    PettingZoo's parallel_api_test on sumocfg=."""
+    env = gymnasium.make(ENV_ID, net=motorway.net, max_steps=20, traffic_density=(6.0, 6.0))
+    try:
+        check_env(env.unwrapped, skip_render_check=True)  # one SUMO per process: no render env
+    finally:
+        env.close()
+    parallel = make_env(driver="traffic", sumocfg=motorway.sumocfg, agents=3, max_steps=40, seed=0)
+    try:
+        parallel_api_test(parallel, num_cycles=60)
+    finally:
+        parallel.close()
 
 
 def multi_draws(net: Path, seed: int, episodes: int) -> list[tuple[str, float]]:
