@@ -205,10 +205,8 @@ class LaneDriving:
     free_ahead_s: float = 3.0
     ending_lane_m: float = 350.0  # a change into a lane that stops leading on within max(this,
     ending_lane_s: float = 14.0  # this at speed) is no change: SUMO would take the car right back
-    leave_ending_m: float = 1000.0  # a car whose own lane stops leading on within max(this, this
-    leave_ending_s: float = (
-        30.0  # at speed) moves out where the gap allows, as drivers do from the first sign
-    )
+    leave_ending_m: float = 600.0  # a car whose own lane stops leading on within max(this, this at
+    leave_ending_s: float = 24.0  # speed) moves out where the gap allows, before SUMO would take it
     keep_right_reach: float = 1000.0  # m: a slow-side lane kept to leads on this far, and as far as the own
     polite_decel: float = 0.5  # m/s^2: keeping right asks no harder braking of the new follower
     min_time_headway: float = 1.1  # s: the policy's accel may not push the car closer behind its leader

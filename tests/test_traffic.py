@@ -415,7 +415,7 @@ def test_a_car_ahead_in_a_lane_that_ends_is_let_in_and_one_alongside_is_passed()
     assert letting_in(speed, desired, *waiting, through, ruled)[0] == np.inf
 
 
-def test_a_car_whose_lane_ends_falls_in_behind_the_car_beside_it_and_moves_out_a_kilometre_ahead():
+def test_a_car_whose_lane_ends_falls_in_behind_the_car_beside_it_and_moves_out_600_m_ahead():
     ruled = LaneDriving()
     speed, desired = np.array([25.0]), np.array([30.0])
     beside = leaders_of(fast_lead=(2, 7.0, 25.0), fast_follow=(3, 11.0, 25.5))  # no gap: a platoon
@@ -434,9 +434,9 @@ def test_a_car_whose_lane_ends_falls_in_behind_the_car_beside_it_and_moves_out_a
         )  # fmt: skip
         return int(out.changing[0]), float(out.actuation.speed[0])
 
-    assert change_begins(900.0)[0] == 1  # the own lane ends 900 m on: over to the fast side
+    assert change_begins(550.0)[0] == 1  # the own lane ends 550 m on: over to the fast side
     assert change_begins(np.inf)[0] == 0  # it leads on: the rightmost lane is kept
-    waits, slower = change_begins(600.0, beside)
+    waits, slower = change_begins(500.0, beside)
     assert waits == 0 and slower < 25.0 - 0.4  # no gap yet: it waits, falling back to make one
 
 
