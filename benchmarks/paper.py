@@ -259,7 +259,8 @@ def plan_df(
 ) -> dict[str, list[dict[str, Any]]]:
     """The paper's metrics and the realism table of a plan, its realism reports (no pictures: they
     would cost ~2 s each) in out/realism/<policy>/<setting>/."""
-    results, realism = run_plan(EvaluationPlan(policies, settings, episodes, seed), realism=out / "realism",
+    loaded = [(label, None if path is None else load_policy(path)) for label, path in policies]
+    results, realism = run_plan(EvaluationPlan(loaded, settings, episodes, seed), realism=out / "realism",
                                 pictures=False)  # fmt: skip
     return {"results": results.to_dict("records"), "realism": realism.to_dict("records")}
 
