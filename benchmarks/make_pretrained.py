@@ -2,11 +2,12 @@
 
 The traffic driver's policy (traffic.pt, populate's default: keepers and overtakers in one
 network among SUMO's traffic on the family of training roads) trains on one core for the
-whole budget. Beside it, on the other core, the paper's policies: lane keeping first (PS-DDPG,
-6 agents on the ring), then overtaking from the lane-keeping weights (the paper's curriculum)
-and multi-behaviour 4+4 from the same weights (the behaviour id's inputs start at zero). Each
-policy is evaluated without exploration; the safest, then most rewarded, saved checkpoint ships
-as actor-only weights in behaviors/pretrained/.
+whole budget, or up to the hand-picked episode it ships (TRAFFIC_EPISODE). Beside it, on the
+other core, the paper's policies: lane keeping first (PS-DDPG, 6 agents on the ring), then
+overtaking from the lane-keeping weights (the paper's curriculum) and multi-behaviour 4+4 from the
+same weights (the behaviour id's inputs start at zero). Each policy is evaluated without
+exploration; the safest, then most rewarded, saved checkpoint ships as actor-only weights in
+behaviors/pretrained/ (the traffic policy: TRAFFIC_EPISODE's, unless `--traffic-episode 0`).
 """
 
 from __future__ import annotations
@@ -55,10 +56,29 @@ TRAFFIC_EVAL = EnvConfig(scenario="roads", driver="traffic", behaviour="multi", 
                          max_steps=500)  # fmt: skip
 
 
-def traffic_command(runs: Path, seed: int, minutes: float) -> list[str]:
+TRAFFIC_EPISODE = 120
+"""The traffic run's checkpoint that ships as traffic.pt, picked by hand from the checkpoints of a
+seed-0 run by three screens of 100%-learned fleets (TRAFFIC_SCREENS); the run stops there. Seeded
+training repeats exactly, so `make pretrained` rebuilds the same file. Neighbouring checkpoints
+differ a lot in dense traffic, which the automatic pick (`--traffic-episode 0`: train for the whole
+budget, ship the safest on the training roads) does not see."""
+TRAFFIC_SCREENS = (
+    "- screens of episode 120 (100% learned, seed 0; `benchmarks/flow.py`'s runs): queue discharge on"
+    " the bundled highway 1,776 veh/h/lane (the previous traffic.pt 898; SUMO's cars 2,541 in"
+    " docs/flow.md); the highway at 20 veh/lane-km with the shield on 2,100 (previous 2,086, SUMO's"
+    " cars alone 2,043-2,056); a curved 4-lane motorway no policy trained on at 27 veh/lane-km without the"
+    " shield 2,568 with 2 losses (previous 2,523 with none). Episode 140 of the same run: 996, 660"
+    " and 806 with 18 losses\n"
+    "- the issue-23 bars over many agent-hours per shield setting: docs/dense.md (`make dense`);"
+    " flow against density: docs/flow.md (`make flow`)\n"
+)
+
+
+def traffic_command(runs: Path, seed: int, minutes: float, episode: int) -> list[str]:
+    """The traffic run: to `episode` (0: for the whole budget of `minutes`)."""
     return [sys.executable, "-m", "behaviors.cli", "train", *TRAFFIC_ARGS, "--seed", str(seed),
-            "--out", str(runs / "traffic"), "--max-minutes", str(minutes), "--episodes", "2000",
-            "--checkpoint-every", "10"]  # fmt: skip
+            "--out", str(runs / "traffic"), "--max-minutes", str(minutes),
+            "--episodes", str(episode or 2000), "--checkpoint-every", "10"]  # fmt: skip
 
 
 def run_parallel(commands: list[list[str]]) -> list[float]:
@@ -97,7 +117,19 @@ def pick(out: Path, env: EnvConfig, seed: int, episodes: int) -> tuple[Path, dic
     return path, mean
 
 
-def card_section(title: str, cmd: list[str], seed: int, wall: float, out: Path, chosen: Path, m: dict) -> str:
+AUTOMATIC_PICK = "of all saved checkpoints: fewest failures, then most reward"
+
+
+def card_section(
+    title: str,
+    cmd: list[str],
+    seed: int,
+    wall: float,
+    out: Path,
+    chosen: Path,
+    m: dict,
+    how: str = AUTOMATIC_PICK,
+) -> str:
     import pandas as pd
 
     metrics = pd.read_csv(out / "metrics.csv")
@@ -106,7 +138,7 @@ def card_section(title: str, cmd: list[str], seed: int, wall: float, out: Path, 
         "",
         f"- command: `{shlex.join(['behave', *cmd[3:]])}`",
         f"- seed: {seed}; training episodes: {len(metrics)}; wall time: {wall / 60:.1f} min",
-        f"- shipped checkpoint: {chosen.stem} (of all saved checkpoints: fewest failures, then most reward)",
+        f"- shipped checkpoint: {chosen.stem} ({how})",
         f"- evaluation ({m['episodes']:.0f} episodes, no exploration): "
         f"{m['colliding_steps_pct']:.2f}% colliding steps, {m['off_tracks']:.2f} off-tracks and "
         f"{m['collisions']:.2f} collisions per episode, "
@@ -176,7 +208,13 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--runs", type=Path, default=Path("runs/pretrained"))
     parser.add_argument(
-        "--minutes", default="8,12,20,80", help="budgets: lanekeeping,overtaking,multi,traffic"
+        "--minutes", default="8,12,20,60", help="budgets: lanekeeping,overtaking,multi,traffic"
+    )
+    parser.add_argument(
+        "--traffic-episode",
+        type=int,
+        default=TRAFFIC_EPISODE,
+        help="the traffic checkpoint to ship (0: pick)",
     )
     parser.add_argument("--stages", default="paper,traffic", help="paper, traffic or both")
     parser.add_argument("--eval-episodes", type=int, default=5)
@@ -185,7 +223,7 @@ def main() -> None:
     *paper_minutes, traffic_min = (float(x) for x in args.minutes.split(","))
     stages = set(args.stages.split(","))
     s, runs = args.seed, args.runs
-    traffic_cmd = traffic_command(runs, s, traffic_min)
+    traffic_cmd = traffic_command(runs, s, traffic_min, args.traffic_episode)
     traffic_start = time.perf_counter()
     training = "traffic" in stages and not args.pick_only
     traffic = subprocess.Popen(traffic_cmd) if training else None
@@ -196,11 +234,21 @@ def main() -> None:
         [traffic_wall] = (
             recorded_walls([runs / "traffic"]) if args.pick_only else [time.perf_counter() - traffic_start]
         )
-        chosen, m = pick(runs / "traffic", TRAFFIC_EVAL, s, args.eval_episodes)
+        if args.traffic_episode:
+            chosen = runs / "traffic" / "checkpoints" / f"episode_{args.traffic_episode:05d}.pt"
+            m = mean_rows(evaluate(TRAFFIC_EVAL, load_policy(chosen).act, args.eval_episodes, s))
+            how, screens = "picked by hand from the run's checkpoints by the screens below", TRAFFIC_SCREENS
+        else:
+            (chosen, m), how, screens = (
+                pick(runs / "traffic", TRAFFIC_EVAL, s, args.eval_episodes),
+                AUTOMATIC_PICK,
+                "",
+            )
         save_actor_only(chosen, PRETRAINED / "traffic.pt")
         results["traffic"] = m
-        sections.insert(0, card_section(TRAFFIC_TITLE, traffic_cmd, s, traffic_wall, runs / "traffic", chosen,
-                                        {**m, "episodes": args.eval_episodes}))  # fmt: skip
+        section = card_section(TRAFFIC_TITLE, traffic_cmd, s, traffic_wall, runs / "traffic", chosen,
+                               {**m, "episodes": args.eval_episodes}, how)  # fmt: skip
+        sections.insert(0, section + screens)
 
     header = (
         "# Bundled policies: model card\n\n"
