@@ -62,10 +62,10 @@ from behaviors.geometry import CAR_CLASS, RoadGeometry, load_geometry
 from behaviors.interrupt import sigint_between_steps
 from behaviors.policy import PRETRAINED, Policy, load_policy
 from behaviors.routes import RoutePool, misplaced, route_graph
-from behaviors.scenario_config import LATERAL_RESOLUTION, ScenarioConfig, read_sumocfg, share_draw
+from behaviors.scenario_config import ScenarioConfig, read_sumocfg, run_as_sumocfg, share_draw
 from behaviors.sim import SimOptions, SumoSim, VehicleState, check_display
 from behaviors.timing import PhaseTimer
-from behaviors.traffic_env import desired_fractions
+from behaviors.traffic_env import VTYPES, desired_fractions
 from sumo_scenarios import get_scenario
 
 BACKGROUND_TYPE = "behave_background"
@@ -467,18 +467,14 @@ class Population:
     def start(self, fcd_tmp: Path | None) -> None:
         """Start SUMO writing FCD to `fcd_tmp` (None: no FCD, for benchmarks) and ask for the cars."""
         c, scenario = self.config, self.scenario
-        vtypes = get_scenario("highway").vtypes
         routes = (c.routes,) if c.routes else ()
         fcd = () if fcd_tmp is None else tuple(fcd_options(fcd_tmp, geo=c.geo))
-        extra = ("--begin", "0", *fcd)
-        options = SimOptions(net=c.net, additional=(vtypes,), routes=routes, step_length=c.step_length,
-                             seed=c.seed, extra=extra, gui=c.gui)  # fmt: skip
-        if scenario is not None:  # the sumocfg's options, its files named again beside behave's
-            options = replace(
-                options, additional=(*scenario.additional, vtypes), routes=(*scenario.routes, *routes),
-                lateral_resolution=scenario.lateral_resolution or LATERAL_RESOLUTION,
-                extra=("--configuration-file", str(scenario.path), *fcd),
-            )  # fmt: skip
+        options = SimOptions(net=c.net, additional=(VTYPES,), routes=routes, step_length=c.step_length,
+                             seed=c.seed, extra=fcd, gui=c.gui)  # fmt: skip
+        if scenario is not None:
+            options = run_as_sumocfg(options, scenario)
+        else:  # a sumocfg keeps its own begin time; a net starts at 0
+            options = replace(options, extra=("--begin", "0", *fcd))
         self.sim = SumoSim(options)
         self.routes = RoutePool(self.graph, c.duration * 50.0, self.sim.add_route)
         self.insert("overtaker", c.overtakers)

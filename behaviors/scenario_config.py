@@ -13,10 +13,11 @@ from __future__ import annotations
 import hashlib
 import re
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from behaviors.errors import BehaveError
+from behaviors.sim import SimOptions
 
 LATERAL_RESOLUTION = 0.8
 """m: SUMO's sublane width behave needs for its agents' sideways moves, where the sumocfg sets none."""
@@ -115,3 +116,16 @@ def share_draw(seed: int, vehicle: str) -> float:
     not depend on what happens in the run (nor on the order cars depart in)."""
     digest = hashlib.blake2b(f"{seed}/{vehicle}".encode(), digest_size=8).digest()
     return int.from_bytes(digest, "big") / 2**64
+
+
+def run_as_sumocfg(options: SimOptions, scenario: ScenarioConfig) -> SimOptions:
+    """behave's SUMO `options` (its vTypes in `additional`, its routes, its `extra` after) run as the
+    user's sumocfg: with all of the sumocfg's own options and its files named again first (SUMO reads
+    `-c` first; files given again replace its lists, so behave's are added to the sumocfg's)."""
+    return replace(
+        options,
+        additional=(*scenario.additional, *options.additional),
+        routes=(*scenario.routes, *options.routes),
+        lateral_resolution=scenario.lateral_resolution or LATERAL_RESOLUTION,
+        extra=("--configuration-file", str(scenario.path), *options.extra),
+    )

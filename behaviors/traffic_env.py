@@ -13,7 +13,7 @@ behaviour id and their desired speed.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +33,7 @@ from behaviors.errors import BehaveError
 from behaviors.geometry import RoadGeometry, load_geometry
 from behaviors.rewards import NO_PROGRESS_SECONDS, TrafficStep, TrafficWeights, traffic_rewards, weigh
 from behaviors.routes import RouteGraph, RoutePool, lane_km, misplaced, route_graph
-from behaviors.scenario_config import LATERAL_RESOLUTION, ScenarioConfig, read_sumocfg
+from behaviors.scenario_config import ScenarioConfig, read_sumocfg, run_as_sumocfg
 from behaviors.sim import SimOptions, SumoSim
 from sumo_scenarios import Scenario, data_dir, get_scenario, route_edges, training_roads
 from sumo_scenarios.build import VTYPES_FILE
@@ -172,16 +172,7 @@ def own_road_options(road: OwnRoad, step_length: float, seed: int) -> SimOptions
     """SUMO's options on a user's road: a sumocfg runs with all its own options (its files named
     again beside behave's vTypes), as `behave populate --sumocfg` runs it."""
     options = SimOptions(net=road.net, additional=(VTYPES,), step_length=step_length, seed=seed)
-    scenario = road.scenario
-    if scenario is None:
-        return options
-    return replace(
-        options,
-        additional=(*scenario.additional, VTYPES),
-        routes=scenario.routes,
-        lateral_resolution=scenario.lateral_resolution or LATERAL_RESOLUTION,
-        extra=("--configuration-file", str(scenario.path)),
-    )
+    return options if road.scenario is None else run_as_sumocfg(options, road.scenario)
 
 
 class TrafficEnv(BehaveEnv):
