@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviors.geometry import RoadGeometry
-from behaviors.handover import LANE_END_MARGIN
+from behaviors.handover import lane_leads_on
 from behaviors.sensors import crowded
 from behaviors.sim import SumoSim, VehicleState
 
@@ -116,11 +116,14 @@ def too_close(vehicles: VehicleState, rows: np.ndarray) -> np.ndarray:
     return crowded(vehicles.position, vehicles.speed, rows, INSERT_CLEARANCE, INSERT_DECEL)
 
 
-def lane_runs_out(own_run: np.ndarray, best_run: np.ndarray, speed: np.ndarray) -> np.ndarray:
-    """[N] bool: newly placed agents whose lane stops leading on too soon (INSERT_LANE_RUN) while
-    their edge's best lane goes on further (a lane that ends, not the end of the route)."""
-    soon = np.maximum(INSERT_LANE_RUN, INSERT_LANE_RUN_S * speed)
-    return (own_run < soon) & (best_run > own_run + LANE_END_MARGIN)
+def lane_runs_out(
+    lane_end: np.ndarray, best_end: np.ndarray, lane_pos: np.ndarray, speed: np.ndarray
+) -> np.ndarray:
+    """[N] bool: newly placed agents whose lane (ending at `lane_end` in lane coordinates; the
+    edge's farthest-leading lane at `best_end`) stops leading on within INSERT_LANE_RUN, as the
+    hand-over tells a lane that ends from the end of a route (handover.lane_leads_on)."""
+    leads = lane_leads_on(lane_end[:, None], best_end, lane_pos)[:, 0]
+    return leads < np.maximum(INSERT_LANE_RUN, INSERT_LANE_RUN_S * speed)
 
 
 def misplaced(sim: SumoSim, vehicles: VehicleState, ids: list[str], agent: np.ndarray) -> np.ndarray:
@@ -128,7 +131,11 @@ def misplaced(sim: SumoSim, vehicles: VehicleState, ids: list[str], agent: np.nd
     withdrawn and put elsewhere: too close to another car, or an agent in a lane that runs out."""
     rows = np.array([vehicles.row[v] for v in ids], np.int64)
     out = too_close(vehicles, rows)
-    if agent.any():
-        runs = np.array([sim.lane_runs_ahead(v) for v, a in zip(ids, agent, strict=True) if a])
-        out[agent] |= lane_runs_out(runs[:, 0], runs[:, 1], vehicles.speed[rows[agent]])
+    agents = [v for v, a in zip(ids, agent, strict=True) if a]
+    if agents:
+        ahead = [sim.lane_lengths_ahead(v) for v in agents]
+        lane_end = np.array([a.get(lane, 0.0) for a, lane in zip(ahead, sim.read_lanes(agents), strict=True)])
+        best_end = np.array([max(a.values(), default=0.0) for a in ahead])
+        lane_pos, _ = sim.read_lane_places(agents)
+        out[agent] |= lane_runs_out(lane_end, best_end, lane_pos, vehicles.speed[rows[agent]])
     return out

@@ -298,14 +298,6 @@ class SumoSim:
         has its own length)."""
         return {lane[0]: lane[1] for lane in self._sumo.vehicle.getBestLanes(vid)}
 
-    def lane_runs_ahead(self, vid: str) -> tuple[float, float]:
-        """(metres `vid`'s own lane, and its edge's farthest-leading lane, can be driven on from where
-        the car is along its route without a lane change)."""
-        v = self._sumo.vehicle
-        lengths = self.lane_lengths_ahead(vid)
-        here = v.getLanePosition(vid)
-        return lengths.get(v.getLaneID(vid), 0.0) - here, max(lengths.values(), default=0.0) - here
-
     def route_ahead(self, vid: str) -> list[str]:
         """The edges of `vid`'s route after the one it is on (or, inside a junction, came from)."""
         v = self._sumo.vehicle

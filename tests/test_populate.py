@@ -325,4 +325,4 @@ def test_no_agent_is_put_down_in_a_lane_that_ends_before_it_could_merge_out(tmp_
     assert len(dropping) and (dropping["pos"] <= 800.0 - INSERT_LANE_RUN).all(), dropping[["pos", "speed"]]
     left, best = np.array([399.0, 399.0, 900.0]), np.array([2000.0, 405.0, 2000.0])
     # 399 m left in a lane that ends while another goes on; the route ends there; room to merge out
-    assert lane_runs_out(left, best, np.zeros(3)).tolist() == [True, False, False]
+    assert lane_runs_out(left, best, np.zeros(3), np.zeros(3)).tolist() == [True, False, False]
