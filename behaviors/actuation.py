@@ -387,16 +387,28 @@ def letting_in(
         there = np.isfinite(other_speed[:, column]) & (gap[:, column] < lateral.let_in_gap)
         there &= gap[:, column] > lateral.following.min_gap  # one nearer (or alongside) is passed
         ending = (lane_leads_on[:, lane] < soon) & (lane_leads_on[:, lane] < lane_leads_on[:, 0])
-        applies = there & ending
-        follow = following_accel(
-            speed,
-            desired_speed,
-            np.where(applies, gap[:, column], np.inf),
-            np.nan_to_num(other_speed[:, column]),
-            courtesy,
+        behind = yielding(
+            speed, desired_speed, gap[:, column], other_speed[:, column], there & ending, courtesy, lateral
         )
-        out = np.where(applies, np.minimum(out, np.maximum(follow, -lateral.safe_decel)), out)
+        out = np.minimum(out, behind)
     return out
+
+
+def yielding(
+    speed: np.ndarray,
+    desired_speed: np.ndarray,
+    leader_gap: np.ndarray,
+    leader_speed: np.ndarray,
+    applies: np.ndarray,
+    law: CarFollowing,
+    lateral: LaneDriving,
+) -> np.ndarray:
+    """[N] the acceleration that keeps a car behind a leader it yields to (`law`: a courtesy
+    headway) where `applies`, braking no harder than `safe_decel`; +inf elsewhere."""
+    follow = following_accel(
+        speed, desired_speed, np.where(applies, leader_gap, np.inf), np.nan_to_num(leader_speed), law
+    )
+    return np.where(applies, np.maximum(follow, -lateral.safe_decel), np.inf)
 
 
 def falling_in(
@@ -417,10 +429,7 @@ def falling_in(
     leader_gap, leader_speed = gap[rows, column], other_speed[rows, column]
     applies = (waiting != 0) & np.isfinite(leader_speed) & np.isfinite(leader_gap)
     courtesy = replace(lateral.following, time_headway=lateral.let_in_headway)
-    follow = following_accel(
-        speed, desired_speed, np.where(applies, leader_gap, np.inf), np.nan_to_num(leader_speed), courtesy
-    )
-    return np.where(applies, np.maximum(follow, -lateral.safe_decel), np.inf)
+    return yielding(speed, desired_speed, leader_gap, leader_speed, applies, courtesy, lateral)
 
 
 def lateral_profile(
