@@ -71,9 +71,7 @@ class EnvConfig:
     driver: str = "paper"  # "paper": TORCS state + the paper's reward; "traffic": lanes among SUMO traffic
     traffic_density: tuple[float, float] = (4.0, 30.0)  # traffic driver: SUMO cars per lane-km, drawn
     car: CarModel = field(default_factory=CarModel)
-    net: str | Path | None = (
-        None  # traffic driver: a user's .net.xml instead of `scenario`, SUMO's cars as drawn
-    )
+    net: str | Path | None = None  # traffic driver: a user's .net.xml instead of `scenario`
     sumocfg: str | Path | None = None  # traffic driver: a user's .sumocfg instead; its routes are SUMO's cars
     reward_weights: Mapping[str, float] | None = None  # reward term name -> weight (others: 1)
 
