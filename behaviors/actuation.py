@@ -207,11 +207,14 @@ class LaneDriving:
     ending_lane_s: float = 14.0  # this at speed) is no change: SUMO would take the car right back
     leave_ending_m: float = 600.0  # a car whose own lane stops leading on within max(this, this at
     leave_ending_s: float = 24.0  # speed) moves out where the gap allows, before SUMO would take it
+    shorter_lane_m: float = 100.0  # m: a lane that stops leading on this much before the own one
     keep_right_reach: float = 1000.0  # m: a slow-side lane kept to leads on this far, and as far as the own
+    keep_right_catch_up_s: float = 20.0  # s: a slow-side leader the car would reach this soon: not free
     polite_decel: float = 0.5  # m/s^2: keeping right asks no harder braking of the new follower
     min_time_headway: float = 1.1  # s: the policy's accel may not push the car closer behind its leader
     diagonal_headway: float = 0.3  # s: kept behind the fast-side lane's leader not to be passed
-    pass_margin: float = 1.0  # m/s: a leader this much slower than the car wants is a reason to pass
+    pass_margin: float = 2.0  # m/s: a leader this much slower than the car wants is a reason to pass
+    keeper_pass_margin: float = 4.0  # m/s: the same for a lane keeper, who passes only a much slower car
     let_in_gap: float = 10.0  # m: a car this close ahead in a neighbour lane that ends is let in
     let_in_headway: float = 0.5  # s: kept behind a car being let in, until it has moved over
     # m/s: above this the fast-side leader is not passed on its slow side
@@ -311,6 +314,15 @@ def lane_intent(
     return np.where((changing == 0) & (wish != 0) & room, wish, going)
 
 
+def lane_clear(
+    speed: np.ndarray, lead_gap: np.ndarray, lead_speed: np.ndarray, lateral: LaneDriving
+) -> np.ndarray:
+    """[N] bool: a neighbour lane's leader is beyond `look_ahead` and would not be caught up with
+    within `keep_right_catch_up_s` (a driver does not change lanes only to be held up again)."""
+    closing = np.maximum(speed - np.nan_to_num(lead_speed, nan=np.inf), 0.0)
+    return lead_gap > np.maximum(look_ahead(speed, lateral), closing * lateral.keep_right_catch_up_s)
+
+
 def slow_side_free(
     speed: np.ndarray,
     gap: np.ndarray,
@@ -318,14 +330,15 @@ def slow_side_free(
     lateral: LaneDriving,
     lane_leads_on: np.ndarray | None = None,
 ) -> np.ndarray:
-    """[N] bool: nobody in the slow-side lane within `look_ahead`,
+    """[N] bool: the slow-side lane is clear (`lane_clear`),
     nobody behind there who would have to brake for the car moving in (`polite_decel`): keeping
     right is no reason to cut in; and that lane leads on along the route as far as the own one does
     and at least `keep_right_reach` (an exit, a lane drop or an acceleration lane is not kept to).
     `gap`/`other_speed` [N, 6] as in `gap_acceptable` (gap 0 = no lane or alongside);
     `lane_leads_on` [N, 3] metres (own, fast side, slow side), None: every lane leads on."""
     theirs = new_follower_accel(speed, gap[:, 5], other_speed[:, 5], lateral.following)
-    free = (gap[:, 4] > look_ahead(speed, lateral)) & (gap[:, 5] > 0) & (theirs >= -lateral.polite_decel)
+    clear = lane_clear(speed, gap[:, 4], other_speed[:, 4], lateral)
+    free = clear & (gap[:, 5] > 0) & (theirs >= -lateral.polite_decel)
     if lane_leads_on is not None:
         slow = lane_leads_on[:, 2]
         free &= (slow >= lane_leads_on[:, 0]) & (slow >= lateral.keep_right_reach)
@@ -338,29 +351,41 @@ def held_up(
     gap: np.ndarray,
     other_speed: np.ndarray,
     lateral: LaneDriving,
+    pass_margin: np.ndarray | float | None = None,
 ) -> np.ndarray:
     """[N] bool: a leader within `look_ahead` drives slower than the car wants by more than
-    `pass_margin`: the reason to move to the fast side."""
+    `pass_margin` (m/s, per agent; None: `lateral.pass_margin`), and the fast-side lane is better:
+    free for `keep_right_catch_up_s` at the car's speed, or its leader faster than the own one by
+    as much. The reason to move to the fast side."""
+    margin = lateral.pass_margin if pass_margin is None else pass_margin
     near = np.isfinite(gap[:, 0]) & (gap[:, 0] < look_ahead(speed, lateral))
-    return near & (np.nan_to_num(other_speed[:, 0], nan=np.inf) < desired_speed - lateral.pass_margin)
+    lead_speed = np.nan_to_num(other_speed[:, 0], nan=np.inf)
+    fast_speed = np.nan_to_num(other_speed[:, 2], nan=np.inf)
+    return (
+        near
+        & (lead_speed < desired_speed - margin)
+        & (lane_clear(speed, gap[:, 2], other_speed[:, 2], lateral) | (fast_speed > lead_speed + margin))
+    )
 
 
 def not_undertaking(
     speed: np.ndarray,
     desired_speed: np.ndarray,
-    gap: np.ndarray,
-    other_speed: np.ndarray,
+    lead_gap: np.ndarray,
+    lead_speed: np.ndarray,
     lateral: LaneDriving,
 ) -> np.ndarray:
-    """[N] the acceleration that keeps behind the fast-side lane's leader while it drives faster than
-    `no_undertaking_above` (+inf where there is none, or it is slower: passing on the slow side is
-    allowed in a queue). The car may close up beside that lane, so the gap kept is short."""
-    ahead = np.isfinite(gap[:, 2]) & (gap[:, 2] > 0)
-    lead_speed = np.nan_to_num(other_speed[:, 2])
-    applies = ahead & (lead_speed > lateral.no_undertaking_above)
+    """[N] the acceleration that keeps behind the leaders on the fast side ([N, K] gaps and speeds:
+    the fast-side lane's and those of the lanes beyond) while they drive faster than
+    `no_undertaking_above` (+inf where there is none, or they are slower: passing on the slow side is
+    allowed in a queue). The car may close up beside them, so the gap kept is short."""
     diagonal = replace(lateral.following, time_headway=lateral.diagonal_headway, min_gap=0.0)
-    behind = following_accel(speed, desired_speed, np.where(applies, gap[:, 2], np.inf), lead_speed, diagonal)
-    return np.where(applies, behind, np.inf)
+    out = np.full(len(speed), np.inf)
+    for gap, speed_ahead in zip(lead_gap.T, np.nan_to_num(lead_speed).T, strict=True):
+        applies = np.isfinite(gap) & (gap > 0) & (speed_ahead > lateral.no_undertaking_above)
+        behind = following_accel(speed, desired_speed, np.where(applies, gap, np.inf), speed_ahead, diagonal)
+        out = np.minimum(out, np.where(applies, behind, np.inf))
+    return out
 
 
 def letting_in(
@@ -458,6 +483,15 @@ def lateral_profile(
 
 
 @dataclass(frozen=True)
+class LaneHabits:
+    """How each agent uses the lanes, beyond the rules every car keeps: its driving behaviour."""
+
+    keeps_right: np.ndarray  # [N] bool: moves to a free slow-side lane unasked
+    passes: np.ndarray  # [N] bool: held up, moves to the fast side unasked
+    pass_margin: np.ndarray  # [N] m/s: a leader this much slower than the car wants is a reason to pass
+
+
+@dataclass(frozen=True)
 class LaneCommand:
     """The traffic driver's actuation and the per-agent state it carries to the next step."""
 
@@ -489,6 +523,8 @@ def actuate_lanes(
     speed_cap: np.ndarray | None = None,
     lane_leads_on: np.ndarray | None = None,
     on_normal_edge: np.ndarray | None = None,
+    habits: LaneHabits | None = None,
+    far_fast_leader: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> LaneCommand:
     """One control step of the traffic driver for all agents.
 
@@ -498,7 +534,13 @@ def actuate_lanes(
     neighbours in lanes.NEIGHBOUR_SLOTS order (gap +inf where none, 0 alongside or no lane). `angle` in
     the result is atan(lateral speed / speed). A car that heads for a neighbour lane also
     follows that lane's leader, as a driver who moves over does. No change begins off
-    `on_normal_edge` [N] bool (None: everywhere).
+    `on_normal_edge` [N] bool (None: everywhere). `habits` (None: all keep right, pass as
+    `lateral` says and go to the slow side when the policy asks) tell who keeps right and who
+    passes a slower leader unasked; with them, only the rules move a car to the slow side;
+    `far_fast_leader` ([N] gap, [N] speed; None: none) is the nearest leader in a lane beyond the
+    fast-side one, which is not passed on its slow side either. A car that wants more than the
+    limit (`desired_speed` above `speed_limit`) drives at what it wants, as a share of real
+    drivers and of SUMO's do.
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
     acceptable = gap_acceptable(speed, desired_speed, gap, other_speed, lateral)
@@ -510,8 +552,16 @@ def actuate_lanes(
         ending = lane_leads_on[:, 0] < leave_within  # and out of the own lane, if it ends, early on
         leave = np.where(ending & (lane_leads_on[:, 1] >= soon), 1, 0)
         leave = np.where(ending & (leave == 0) & (lane_leads_on[:, 2] >= soon), -1, leave)
+        # nor, unless the own lane ends, into one that ends well before it (a weave's, an exit's)
+        shorter = lane_leads_on[:, 1:] < lane_leads_on[:, :1] - lateral.shorter_lane_m
+        acceptable &= ~shorter | (leave[:, None] == np.array([1, -1]))
     free = slow_side_free(speed, gap, other_speed, lateral, lane_leads_on) if lateral.keep_right else None
-    held = held_up(speed, desired_speed, gap, other_speed, lateral) if lateral.keep_right else None
+    if free is not None and habits is not None:
+        free &= habits.keeps_right
+    margin = None if habits is None else habits.pass_margin
+    held = held_up(speed, desired_speed, gap, other_speed, lateral, margin) if lateral.keep_right else None
+    if habits is not None and held is not None:  # the slow side is the rules' alone
+        steer = np.where(habits.passes & held, 1.0, np.maximum(steer, 0.0))
     heading = lane_intent(
         steer,
         changing,
@@ -541,7 +591,11 @@ def actuate_lanes(
     adjust = 2.0 * lateral.accel_span * (accel - 0.5) - car.max_brake * brake
     if lateral.keep_right:  # the target lane's leader and the fast-side leader bound the policy too
         bound = np.where(heading != 0, into, np.inf)
-        bound = np.minimum(bound, not_undertaking(speed, desired_speed, gap, other_speed, lateral))
+        fast_gap, fast_speed = gap[:, 2:3], other_speed[:, 2:3]
+        if far_fast_leader is not None:
+            fast_gap = np.column_stack([fast_gap, far_fast_leader[0]])
+            fast_speed = np.column_stack([fast_speed, far_fast_leader[1]])
+        bound = np.minimum(bound, not_undertaking(speed, desired_speed, fast_gap, fast_speed, lateral))
         if lane_leads_on is not None:
             bound = np.minimum(
                 bound, letting_in(speed, desired_speed, gap, other_speed, lane_leads_on, lateral)
@@ -557,7 +611,7 @@ def actuate_lanes(
     else:
         command = np.minimum(follow, into) + adjust
     command = np.clip(command, -car.max_brake, car.max_accel)
-    new_speed = np.clip(speed + command * dt, 0.0, speed_limit)
+    new_speed = np.clip(speed + command * dt, 0.0, np.maximum(speed_limit, desired_speed))
     speed_cut = np.zeros(len(new_speed), bool)
     if speed_cap is not None:
         speed_cut = new_speed > speed_cap

@@ -15,7 +15,7 @@ from typing import Any, ClassVar
 import numpy as np
 from gymnasium import spaces
 
-from behaviors.actuation import Actuation, LaneDriving, actuate, actuate_lanes
+from behaviors.actuation import Actuation, LaneDriving, LaneHabits, actuate, actuate_lanes
 from behaviors.control import Fleet, Observed, Sensing, road_frame
 from behaviors.errors import BehaveError
 from behaviors.handover import (
@@ -314,6 +314,16 @@ class TrafficDriver:
         r.speed = np.where(r.handed, sumo_speed, r.speed)  # SUMO drives them: their speed is SUMO's
         return handover
 
+    def habits(self, lanes: LaneAgents) -> LaneHabits:
+        """How the two behaviours use the lanes. Overtakers pass any leader slower than they want
+        and go back right after a pass, wherever they are. Keepers keep the lane they are in, as
+        lane keepers do: they pass only a much slower leader, and move right unasked only out of the
+        fast-most lane, which the law leaves for passing."""
+        overtaker = lanes.behaviour_id > 0.5
+        fast_most = lanes.lane_number == lanes.lanes - 1
+        margin = np.where(overtaker, self.lateral.pass_margin, self.lateral.keeper_pass_margin)
+        return LaneHabits(keeps_right=overtaker | fast_most, passes=overtaker, pass_margin=margin)
+
     def actuate(self, fleet: Fleet, actions: np.ndarray) -> Actuation:
         r, f, own = fleet.rows, fleet.rows.frame, fleet.rows.own
         lanes, around = own.lanes, own.around
@@ -323,7 +333,7 @@ class TrafficDriver:
             own.lateral_speed, own.lateral_accel, own.changing, lanes.lane_offset, lanes.lane_width,
             lanes.lanes - 1 - lanes.lane_number, lanes.lane_number, f.offset, f.half_width, f.speed_limit,
             fleet.dt, fleet.car, self.lateral, r.side_limit, r.speed_cap, lanes.lane_leads_on,
-            f.on_normal_edge,
+            f.on_normal_edge, self.habits(lanes), (around.far_fast_gap, around.far_fast_speed),
         )  # fmt: skip
         # a junction's internal edge holds only the lanes of some connections, not the
         # carriageway: the move stays clamped to it, but leaving it is not off the road

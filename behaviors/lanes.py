@@ -98,11 +98,15 @@ class Surroundings:
 
     `gap` is bumper to bumper, +inf when nobody is within GAP_RANGE and 0 where the lane does
     not exist (a wall); `other_speed` is the neighbour's speed (nan when there is none).
-    Columns follow NEIGHBOUR_SLOTS.
+    Columns follow NEIGHBOUR_SLOTS. `far_fast_gap`/`far_fast_speed`: the nearest leader in any
+    lane beyond the fast-side one (not observed: the rule against passing on the slow side reads
+    it, since a car two lanes over is passed on the wrong side too).
     """
 
     gap: np.ndarray  # [N, 6]
     other_speed: np.ndarray  # [N, 6]
+    far_fast_gap: np.ndarray  # [N]
+    far_fast_speed: np.ndarray  # [N]
 
     @property
     def lead_gap(self) -> np.ndarray:
@@ -200,6 +204,7 @@ def surroundings(
     n = len(agents.speed)
     gap = np.full((n, 6), np.inf)
     other = np.full((n, 6), np.nan)
+    far_gap, far_speed = np.full(n, np.inf), np.full(n, np.nan)
     if near is None:
         near = neighbours(agents.front, positions, SEARCH_RADIUS, exclude=agent_rows)
     q, m, dx, dy, _ = within(near, SEARCH_RADIUS)
@@ -222,6 +227,10 @@ def surroundings(
         found, nearest = nearest_per_slot(n * 6, slot, distance[pair])
         gap.ravel()[found] = distance[pair[nearest]]
         other.ravel()[found] = speeds[m[pair[nearest]]]
+        k = np.flatnonzero((lane_units - half > 1.5) & ~behind)
+        found, nearest = nearest_per_slot(n, q[k], distance[k])
+        far_gap[found] = distance[k[nearest]]
+        far_speed[found] = speeds[m[k[nearest]]]
     gap = np.maximum(gap, 0.0)
     fast_missing = agents.lane_number >= agents.lanes - 1
     slow_missing = agents.lane_number <= 0
@@ -229,7 +238,7 @@ def surroundings(
     gap[slow_missing, 4:6] = 0.0
     other[fast_missing, 2:4] = np.nan
     other[slow_missing, 4:6] = np.nan
-    return Surroundings(gap, other)
+    return Surroundings(gap, other, np.maximum(far_gap, 0.0), far_speed)
 
 
 def observe_lanes(agents: LaneAgents, around: Surroundings) -> np.ndarray:

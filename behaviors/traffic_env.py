@@ -38,7 +38,7 @@ from behaviors.sim import SimOptions, SumoSim
 from sumo_scenarios import Scenario, data_dir, get_scenario, route_edges, training_roads
 from sumo_scenarios.build import VTYPES_FILE
 
-DESIRED_SPEED = {0.0: (0.85, 1.0), 1.0: (0.95, 1.0)}
+DESIRED_SPEED = {0.0: (0.85, 1.0), 1.0: (0.97, 1.07)}
 """Desired speed as a fraction of the limit, drawn per agent: keepers (0) and overtakers (1). Drivers
 want about the limit (SUMO's cars: speed factor 1 +- 0.1); keepers that wanted 72-90% of it cut a
 road's capacity by 13% at 20 cars per lane-km, the slowest setting the pace of whole lanes."""
