@@ -128,13 +128,12 @@ def independent_actors(ckpt: Checkpoint) -> list[Actor]:
 def actor_act(actor: Actor, half: Callable[[int], bool] | None = None) -> Act:
     """The whole fleet through one batched forward pass; in bfloat16 where `half` says so."""
     drive = driving_function(actor)
-    low = None if half is None else copy.deepcopy(actor).to(torch.bfloat16)
+    drive_low = None if half is None else driving_function(copy.deepcopy(actor).to(torch.bfloat16))
 
     def act(obs: np.ndarray, slots: np.ndarray | None = None) -> np.ndarray:
         obs = np.asarray(obs, np.float32)
-        if low is not None and half is not None and half(len(obs)):
-            with torch.inference_mode():
-                return low(torch.from_numpy(obs).to(torch.bfloat16)).float().numpy()
+        if drive_low is not None and half is not None and half(len(obs)):
+            return drive_low(obs)
         return drive(obs)
 
     return act

@@ -99,8 +99,11 @@ def test_actor_outputs_stay_in_range_for_extreme_inputs() -> None:
     torch.testing.assert_close(middle, expected, atol=0.05, rtol=0)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
 @pytest.mark.parametrize("threads", [1, 2])
-def test_the_driving_function_gives_the_actors_actions_bit_for_bit_as_fleets_grow_and_shrink(threads) -> None:
+def test_the_driving_function_gives_the_actors_actions_bit_for_bit_as_fleets_grow_and_shrink(
+    threads, dtype
+) -> None:
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
@@ -108,13 +111,14 @@ def test_the_driving_function_gives_the_actors_actions_bit_for_bit_as_fleets_gro
         actor = Actor(40, (64, 32))
         with torch.no_grad():
             actor.head.weight.mul_(300.0)  # actions spread over their ranges, not all near the centre
+        actor = actor.to(dtype)  # bfloat16: populate's big fleets
         drive = driving_function(actor)
         rng = np.random.default_rng(0)
         kept = []
         for n in (1, 7, 300, 3, 1000, 64):
             obs = rng.standard_normal((n, 40)).astype(np.float32)
             with torch.inference_mode():
-                expected = actor(torch.from_numpy(obs)).numpy()
+                expected = actor(torch.from_numpy(obs).to(dtype)).float().numpy()
             got = drive(obs)
             np.testing.assert_array_equal(got, expected)
             kept.append((got, got.copy()))

@@ -68,26 +68,33 @@ class Critic(nn.Module):
 
 
 def driving_function(actor: Actor) -> Callable[[np.ndarray], np.ndarray]:
-    """The actor as a function of a fleet's observations [N, D] -> actions [N, 3], for driving.
+    """The actor as a function of a fleet's float32 observations [N, D] -> float32 actions [N, 3],
+    for driving, in the actor's own dtype (float32, or bfloat16 for populate's big fleets).
 
     The same arithmetic as `actor(x)` (each layer is the addmm that `nn.Linear` runs), but every
     layer writes into a buffer kept between calls. `actor(x)` asks the allocator for fresh memory
-    at every layer, and at 1,000 agents that cost about 60 page faults per call, once per step.
-    Buffers grow to the largest fleet seen; the weights are read at each call, so the function
-    follows the actor if it is trained further.
+    at every layer, and at 1,000 agents that cost about 60 page faults per call, once per step
+    (in bfloat16 too: 1.43 -> 0.71 ms per call measured inside populate). Buffers grow to the
+    largest fleet seen; the weights are read at each call, so the function follows the actor if
+    it is trained further.
     """
     layers = [m for m in actor.body if isinstance(m, nn.Linear)] + [actor.head]
+    dtype = actor.head.weight.dtype
+    inputs = torch.empty(0, actor.obs_dim, dtype=dtype)  # observations rounded to `dtype`, if not float32
     buffers: list[torch.Tensor] = []
-    out = torch.empty(0, ACT_DIM)
+    out = torch.empty(0, ACT_DIM, dtype=dtype)
 
     def act(obs: np.ndarray) -> np.ndarray:
-        nonlocal buffers, out
+        nonlocal inputs, buffers, out
         n = len(obs)
         if n > len(out):
-            buffers = [torch.empty(n, layer.out_features) for layer in layers]
-            out = torch.empty(n, ACT_DIM)
+            inputs = torch.empty(n, actor.obs_dim, dtype=dtype)
+            buffers = [torch.empty(n, layer.out_features, dtype=dtype) for layer in layers]
+            out = torch.empty(n, ACT_DIM, dtype=dtype)
         with torch.inference_mode():
             x = torch.from_numpy(obs)
+            if dtype != x.dtype:
+                x = inputs[:n].copy_(x)
             for k, layer in enumerate(layers):
                 h = buffers[k][:n]
                 torch.addmm(layer.bias, x, layer.weight.t(), out=h)
@@ -97,6 +104,6 @@ def driving_function(actor: Actor) -> Callable[[np.ndarray], np.ndarray]:
             y = out[:n]
             torch.tanh(x[:, :1], out=y[:, :1])
             torch.sigmoid(x[:, 1:], out=y[:, 1:])
-            return y.numpy().copy()
+            return y.float().numpy() if dtype != torch.float32 else y.numpy().copy()
 
     return act
