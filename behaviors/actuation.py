@@ -243,6 +243,7 @@ def gap_acceptable(
     gap: np.ndarray,
     other_speed: np.ndarray,
     lateral: LaneDriving,
+    merging: np.ndarray | None = None,
 ) -> np.ndarray:
     """[N, 2] bool: whether the fast-side (column 0) and slow-side (column 1) lane have room to
     change into, as a driver checks it: nobody alongside, and neither the new leader nor the new
@@ -250,10 +251,17 @@ def gap_acceptable(
     criterion of MOBIL, Kesting, Treiber and Helbing 2007), nor would a faster new follower come
     alongside within `change_time` (a follower that sees the car only once it is over the line,
     as an agent does, may not brake in time). `gap`/`other_speed` [N, 6] in
-    lanes.NEIGHBOUR_SLOTS order (gap 0: alongside, or no lane)."""
+    lanes.NEIGHBOUR_SLOTS order (gap 0: alongside, or no lane). Where `merging` [N, 2] (a car whose
+    lane ends, towards the side it leaves to), the car's own braking is judged behind the new leader
+    at `let_in_headway`, the gap it falls in to: by the full headway no gap behind a car beside it
+    at its own speed is ever room (the car stood at the end of a dropped lane)."""
     law, out = lateral.following, np.zeros((len(speed), 2), bool)
+    courtesy = replace(law, time_headway=lateral.let_in_headway)
     for side, (lead, follow) in enumerate(((2, 3), (4, 5))):
         own = following_accel(speed, desired_speed, gap[:, lead], other_speed[:, lead], law)
+        if merging is not None and merging[:, side].any():
+            behind = following_accel(speed, desired_speed, gap[:, lead], other_speed[:, lead], courtesy)
+            own = np.where(merging[:, side], behind, own)
         theirs = new_follower_accel(speed, gap[:, follow], other_speed[:, follow], law)
         out[:, side] = (gap[:, lead] > 0) & (gap[:, follow] > 0) & (own >= -lateral.safe_decel)
         out[:, side] &= theirs >= -lateral.safe_decel
@@ -543,18 +551,20 @@ def actuate_lanes(
     drivers and of SUMO's do.
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
-    acceptable = gap_acceptable(speed, desired_speed, gap, other_speed, lateral)
-    leave = None
-    if lateral.keep_right and lane_leads_on is not None:  # nor into a lane that ends before long
+    leave, leaving = None, None
+    if lateral.keep_right and lane_leads_on is not None:
         soon = np.maximum(lateral.ending_lane_m, lateral.ending_lane_s * speed)
-        acceptable &= lane_leads_on[:, 1:] >= soon[:, None]
         leave_within = np.maximum(lateral.leave_ending_m, lateral.leave_ending_s * speed)
-        ending = lane_leads_on[:, 0] < leave_within  # and out of the own lane, if it ends, early on
+        ending = lane_leads_on[:, 0] < leave_within  # out of the own lane, if it ends, early on
         leave = np.where(ending & (lane_leads_on[:, 1] >= soon), 1, 0)
         leave = np.where(ending & (leave == 0) & (lane_leads_on[:, 2] >= soon), -1, leave)
+        leaving = leave[:, None] == np.array([1, -1])  # [N, 2]: fast, slow side
+    acceptable = gap_acceptable(speed, desired_speed, gap, other_speed, lateral, leaving)
+    if leaving is not None and lane_leads_on is not None:  # nor into a lane that ends before long
+        acceptable &= lane_leads_on[:, 1:] >= soon[:, None]
         # nor, unless the own lane ends, into one that ends well before it (a weave's, an exit's)
         shorter = lane_leads_on[:, 1:] < lane_leads_on[:, :1] - lateral.shorter_lane_m
-        acceptable &= ~shorter | (leave[:, None] == np.array([1, -1]))
+        acceptable &= ~shorter | leaving
     free = slow_side_free(speed, gap, other_speed, lateral, lane_leads_on) if lateral.keep_right else None
     if free is not None and habits is not None:
         free &= habits.keeps_right
