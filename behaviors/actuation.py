@@ -211,7 +211,7 @@ class LaneDriving:
     keep_right_reach: float = 1000.0  # m: a slow-side lane kept to leads on this far, and as far as the own
     keep_right_catch_up_s: float = 20.0  # s: a slow-side leader the car would reach this soon: not free
     polite_decel: float = 0.5  # m/s^2: keeping right asks no harder braking of the new follower
-    min_time_headway: float = 1.1  # s: the policy's accel may not push the car closer behind its leader
+    min_time_headway: float = 1.15  # s: the policy's accel may not push the car closer behind its leader
     diagonal_headway: float = 0.3  # s: kept behind the fast-side lane's leader not to be passed
     pass_margin: float = 2.0  # m/s: a leader this much slower than the car wants is a reason to pass
     keeper_pass_margin: float = 4.0  # m/s: the same for a lane keeper, who passes only a much slower car

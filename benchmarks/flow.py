@@ -43,7 +43,7 @@ from common import write_measured_doc
 from behaviors.export import read_fcd
 from behaviors.flow import ALL, RoadEdges, edie_cells, region, road_from_net
 from behaviors.populate import DEFAULT_POLICY, PopulateConfig, populate
-from behaviors.realism import group_names
+from behaviors.realism import THW_LIMIT, group_names, headways, prepare, read_lanes
 from sumo_scenarios import get_scenario
 from sumo_scenarios.build import write_xml
 from sumo_scenarios.osm_like import Chain, run_netconvert, write_plain
@@ -201,7 +201,18 @@ def run_one(run: Run) -> dict:
     whole = region(cells)
     row.update(density=whole.loc[ALL, "density"], flow=whole.loc[ALL, "flow"], speed=whole.loc[ALL, "speed"])
     row["agents_standing_30s"] = agents_standing(df, groups, run.warmup)
+    row.update(agents_headways(df, run.net))
     return row
+
+
+def agents_headways(df: pd.DataFrame, net: Path) -> dict:
+    """The learned agents' (keepers and overtakers pooled) median time headway and share of
+    following time below THW_LIMIT, by the realism report's rules (issue 23's headway bar)."""
+    follow = headways(prepare(df, read_lanes(net)))
+    agents = follow.loc[follow["group"].isin(["keepers", "overtakers"]), "thw"]  # group_names' names
+    if agents.empty:
+        return {"agents_thw": math.nan, "agents_thw_short": math.nan}
+    return {"agents_thw": float(agents.median()), "agents_thw_short": float((agents < THW_LIMIT).mean())}
 
 
 def agents_standing(df: pd.DataFrame, groups: pd.Series, after_s: float) -> int:
@@ -252,7 +263,8 @@ def fmt(value: float, digits: int = 0) -> str:
 def flow_table(rows: pd.DataFrame) -> list[str]:
     header = ["road", "target veh/lane-km", "fleet", "cars (keepers+overtakers+SUMO)", "density",
               "flow veh/h/lane", "speed m/s", "flow / SUMO alone", "agents stood >= 30 s",
-              "collisions + off-tracks", "bar"]  # fmt: skip
+              "collisions + off-tracks", "agents' median headway s", f"agents' following < {THW_LIMIT:g} s",
+              "bar"]  # fmt: skip
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for (road, target), part in rows.groupby(["road", "target_density"], sort=False):
         alone = part.loc[part["fleet"] == "SUMO alone", "flow"]
@@ -264,7 +276,9 @@ def flow_table(rows: pd.DataFrame) -> list[str]:
                 fmt(r["density"], 1), fmt(r["flow"]), fmt(r["speed"], 1),
                 fmt(ratio, 2) if r["fleet"] != "SUMO alone" else "1",
                 str(int(r["agents_standing_30s"])) if r["fleet"] != "SUMO alone" else "-",
-                str(int(r["collisions"] + r["off_tracks"])), bar_mark(r, ratio),
+                str(int(r["collisions"] + r["off_tracks"])), fmt(r["agents_thw"], 2),
+                fmt(100 * r["agents_thw_short"], 1) + "%" if np.isfinite(r["agents_thw_short"]) else "-",
+                bar_mark(r, ratio),
             ]) + " |")  # fmt: skip
     return lines
 
@@ -276,6 +290,8 @@ def bar_mark(r: pd.Series, ratio: float) -> str:
     marks = []
     if r["target_density"] == 20:
         marks.append(f"flow >= 90% of SUMO: {'yes' if ratio >= 0.9 else 'no'}")
+        within = 1.2 <= r["agents_thw"] <= 2.2 and r["agents_thw_short"] < 0.15
+        marks.append(f"headway 1.2-2.2 s, < 15% below 1 s: {'yes' if within else 'no'}")
     if r["target_density"] == 27:
         marks.append(f"flow >= 1,800: {'yes' if r['flow'] >= 1800 else 'no'}")
     if r["road"] != "motorway4":
