@@ -310,7 +310,8 @@ def test_every_collision_and_off_track_is_explained_in_the_agents_table(tmp_path
 
 def test_no_agent_is_put_down_in_a_lane_that_ends_before_it_could_merge_out(tmp_path):
     """A lane drop (4 -> 3 lanes after 800 m): no agent starts in the right lane's last
-    INSERT_LANE_RUN metres (one put at the end of a dropping lane stood there and the lane queued)."""
+    INSERT_LANE_RUN metres (one put at the end of a dropping lane stood there and the lane queued),
+    and no lane keeper in the fast-most lane (it would only move out of it)."""
     chain = Chain()
     chain.way("wide", 4, [(800.0, 0.0)], 3.75)
     chain.way("narrow", 3, [(800.0, 0.0)], 3.75)
@@ -323,6 +324,9 @@ def test_no_agent_is_put_down_in_a_lane_that_ends_before_it_could_merge_out(tmp_
     assert len(first) >= 40 and summary.insert_retries > 0
     dropping = first[first["lane"] == "wide_0"]
     assert len(dropping) and (dropping["pos"] <= 800.0 - INSERT_LANE_RUN).all(), dropping[["pos", "speed"]]
+    keepers_first = first[first.index.str.startswith("keeper_")]
+    assert len(keepers_first) and not keepers_first["lane"].isin(["wide_3", "narrow_2"]).any()
+    assert (first.loc[first.index.str.startswith("overtaker_"), "lane"] == "wide_3").any()
     left, best = np.array([399.0, 399.0, 900.0]), np.array([2000.0, 405.0, 2000.0])
     # 399 m left in a lane that ends while another goes on; the route ends there; room to merge out
     assert lane_runs_out(left, best, np.zeros(3), np.zeros(3)).tolist() == [True, False, False]

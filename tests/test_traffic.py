@@ -266,19 +266,28 @@ def drive_lanes(
     dt=0.2,
     leaders=NO_LEADERS,
     lateral=MECHANICS,
+    behaviour=None,
+    far_fast_leader=None,
 ):
     """Run the traffic driver's actuation alone for one agent on a straight road with `lanes` lanes,
     keeping the books SUMO would (a car whose centre crosses a line is in the next lane, its offset
-    jumps by a lane width); returns per step the lane, the offset in it, lateral speed and accel."""
+    jumps by a lane width); returns per step the lane, the offset in it, lateral speed and accel.
+    `behaviour` ("keeper"/"overtaker"; None: no habits) drives with TrafficDriver's habits for it."""
     car = CarModel()
     state = dict(speed=np.array([speed]), lat=np.array([0.0]), acc=np.array([0.0]), changing=np.array([0]))
     offset, rows = np.array([lane_offset]), []
     for steer in steers:
         carriageway = (lane - (lanes - 1) / 2) * width + offset
+        habits = None
+        if behaviour is not None:
+            flag = np.array([1.0 if behaviour == "overtaker" else 0.0])
+            agent = one_agent(lane_number=np.array([lane]), lanes=np.array([lanes]), behaviour_id=flag)
+            habits = TrafficDriver(lateral).habits(agent)
         out = actuate_lanes(
             np.array([[steer, 0.5, 0.0]]), state["speed"], np.array([speed]), *leaders, state["lat"],
             state["acc"], state["changing"], offset, np.array([width]), np.array([lanes - 1 - lane]),
             np.array([lane]), carriageway, np.array([lanes * width / 2]), np.array([33.3]), dt, car, lateral,
+            habits=habits, far_fast_leader=far_fast_leader,
         )  # fmt: skip
         a = out.actuation
         offset = offset + a.lateral_move
@@ -942,3 +951,86 @@ def test_the_policy_cannot_push_a_car_closer_than_the_minimum_headway():
     assert actuate_lanes(full_throttle, *args, MECHANICS).actuation.speed[0] > v  # the rules off: it may
     gap[0, 0] = 2.0 + 2.0 * v  # 2 s behind: the push is the policy's
     assert actuate_lanes(full_throttle, *args, LaneDriving()).actuation.speed[0] > v
+
+
+def test_overtakers_pass_a_slower_leader_unasked_and_keepers_only_a_much_slower_one_when_they_ask():
+    ruled = LaneDriving()
+    slower = leaders_of(lead=(0, 40.0, 27.0))  # 3 m/s slower than the 30 m/s wanted; the fast lane free
+    assert drive_lanes([0.0] * 3, lateral=ruled, leaders=slower, behaviour="overtaker")[-1, 4] == 1
+    assert set(drive_lanes([1.0] * 10, lateral=ruled, leaders=slower, behaviour="keeper")[:, 4]) == {0}
+    truck = leaders_of(lead=(0, 40.0, 22.0))  # 8 m/s slower
+    assert set(drive_lanes([0.0] * 10, lateral=ruled, leaders=truck, behaviour="keeper")[:, 4]) == {0}
+    assert drive_lanes([1.0] * 3, lateral=ruled, leaders=truck, behaviour="keeper")[-1, 4] == 1  # asked
+    gap, other = leaders_of(lead=(0, 40.0, 27.0), fast_lead=(2, 90.0, 27.0))  # the fast lane no better
+    no_better = drive_lanes([0.0] * 10, lateral=ruled, leaders=(gap, other), behaviour="overtaker")
+    assert no_better[:, 4].max() <= 0  # no move to the fast side (it keeps right into the free lane)
+
+
+def test_keepers_keep_their_lane_but_the_fast_most_one_and_only_the_rules_move_a_car_right():
+    ruled = LaneDriving()
+    for behaviour, lane, wish, moves in [
+        ("keeper", 1, 0.0, False), ("keeper", 1, -1.0, False), ("keeper", 2, 0.0, True),
+        ("overtaker", 1, 0.0, True),
+    ]:  # fmt: skip
+        run = drive_lanes([wish] * 40, lateral=ruled, lane=lane, behaviour=behaviour)
+        assert (run[-1, 0] < lane) == moves, (behaviour, lane, wish)
+    queue = leaders_of(slow_lead=(4, 150.0, 22.0))  # 150 m ahead, 8 m/s slower: caught within 20 s
+    run = drive_lanes([-1.0] * 40, lateral=ruled, leaders=queue, behaviour="overtaker")
+    assert set(run[:, 0]) == {1}  # not moved right only to be held up again
+
+
+def test_no_passing_on_the_slow_side_of_a_car_two_lanes_over():
+    ruled = LaneDriving()
+    two_over = (np.array([10.0]), np.array([25.0]))  # 10 m ahead two lanes over, 5 m/s slower
+    run = drive_lanes([0.0] * 5, lateral=ruled, lane=0, behaviour="overtaker", far_fast_leader=two_over)
+    assert run[-1, 5] < 30.0 - 0.5  # it brakes to stay behind
+    crawling = (np.array([10.0]), np.array([12.0]))  # below 60 km/h: passing on the right is allowed
+    run = drive_lanes([0.0] * 5, lateral=ruled, lane=0, behaviour="overtaker", far_fast_leader=crawling)
+    assert run[-1, 5] >= 30.0 - 1e-9
+
+
+def test_an_overtaker_may_drive_above_the_limit_it_wants_to_exceed():
+    car, limit = CarModel(), np.array([30.0])
+    args = (np.array([30.0]), np.array([33.0]), *NO_LEADERS, np.zeros(1), np.zeros(1), np.array([0]),
+            np.zeros(1), np.array([3.5]), np.array([0]), np.array([0]), np.zeros(1), np.array([1.75]),
+            limit, 0.2, car, MECHANICS)  # fmt: skip
+    assert 30.0 < actuate_lanes(np.array([[0.0, 1.0, 0.0]]), *args).actuation.speed[0] <= 33.0
+
+
+def test_a_car_leaving_its_lane_takes_the_gap_it_falls_in_to_and_no_lane_ending_before_its_own():
+    ruled = LaneDriving()
+    speed, desired = np.array([29.0]), np.array([30.0])
+    gap, other = leaders_of(fast_lead=(2, 17.0, 29.0), fast_follow=(3, 40.0, 29.0))  # 0.5 s behind one
+    assert not gap_acceptable(speed, desired, gap, other, ruled)[0, 0]  # too short to pass into
+    assert gap_acceptable(speed, desired, gap, other, ruled, np.array([[True, False]]))[0, 0]  # to merge
+
+    def heading(leads_on: list[float]) -> int:
+        out = actuate_lanes(
+            np.array([[0.0, 0.5, 0.0]]), speed, desired, gap, other, np.zeros(1), np.zeros(1),
+            np.zeros(1, int), np.zeros(1), np.array([3.5]), np.array([2]), np.array([0]), np.array([-3.5]),
+            np.array([5.25]), np.array([33.3]), 0.2, CarModel(), ruled, lane_leads_on=np.array([leads_on]),
+        )  # fmt: skip
+        return int(out.changing[0])
+
+    assert heading([500.0, np.inf, -1.0]) == 1  # its lane ends: it merges into the gap beside
+    held = leaders_of(lead=(0, 40.0, 22.0))
+    ends_first = np.array([[np.inf, 1000.0, -1.0]])  # the fast-side lane ends 1 km on, the own goes on
+    out = actuate_lanes(
+        np.array([[1.0, 0.5, 0.0]]), speed, desired, *held, np.zeros(1), np.zeros(1), np.zeros(1, int),
+        np.zeros(1), np.array([3.5]), np.array([2]), np.array([0]), np.array([-3.5]), np.array([5.25]),
+        np.array([33.3]), 0.2, CarModel(), ruled, lane_leads_on=ends_first,
+    )  # fmt: skip
+    assert out.changing[0] == 0  # not into a weave's or an exit's lane to pass
+
+
+def test_surroundings_find_the_nearest_leader_beyond_the_fast_side_lane():
+    slow_lane = np.array([STRAIGHT.lane_index["e_0"]])
+    agent = one_agent(lane_row=slow_lane, lane_number=np.array([0]), front=np.array([[0.0, -3.5]]))
+    others = np.array([[40.0, 3.5], [25.0, 0.0], [-10.0, 3.5]])  # two lanes over ahead, one over, behind
+    positions = np.vstack([agent.front, others])
+    speeds = np.array([30.0, 27.0, 26.0, 31.0])
+    around = surroundings(agent, positions, speeds, np.array([0]), STRAIGHT)
+    assert around.far_fast_gap[0] == pytest.approx(35.0) and around.far_fast_speed[0] == 27.0
+    assert around.gap[0, 2] == pytest.approx(20.0) and around.other_speed[0, 2] == 26.0
+    alone = surroundings(agent, positions[:1], speeds[:1], np.array([0]), STRAIGHT)
+    assert np.isinf(alone.far_fast_gap[0]) and np.isnan(alone.far_fast_speed[0])
