@@ -67,7 +67,7 @@ pretrained: $(STAMP)
 	$(BIN)/python benchmarks/make_pretrained.py --seed $(SEED)
 
 realism: $(STAMP)
-	$(BIN)/python benchmarks/traffic_bars.py --seeds 0,1,2
+	$(BIN)/python benchmarks/traffic_bars.py --seeds 0,1,2 --duration 600
 
 own-nets: $(STAMP)
 	$(BIN)/python benchmarks/own_nets_bars.py --seeds 0,1

@@ -59,7 +59,9 @@ TRAFFIC_EVAL = EnvConfig(scenario="roads", driver="traffic", behaviour="multi", 
 TRAFFIC_EPISODE = 120
 """The traffic run's checkpoint that ships as traffic.pt, picked by hand from the checkpoints of a
 seed-0 run by three screens of 100%-learned fleets (TRAFFIC_SCREENS); the run stops there. Seeded
-training repeats exactly, so `make pretrained` rebuilds the same file. Neighbouring checkpoints
+training repeats exactly: under the rules it was trained with (commit b5ba208) `make pretrained`
+rebuilt the same file; the lane habits since change its episodes, so a rerun trains another policy,
+to be screened again before it ships. Neighbouring checkpoints
 differ a lot in dense traffic, which the automatic pick (`--traffic-episode 0`: train for the whole
 budget, ship the safest on the training roads) does not see."""
 TRAFFIC_SCREENS = (
@@ -69,6 +71,10 @@ TRAFFIC_SCREENS = (
     " cars alone 2,043-2,056); a curved 4-lane motorway no policy trained on at 27 veh/lane-km without the"
     " shield 2,568 with 2 losses (previous 2,523 with none). Episode 140 of the same run: 996, 660"
     " and 806 with 18 losses\n"
+    "- trained under the rules of commit b5ba208 (every car kept right, overtakers wanted 0.95-1.0 of"
+    " the limit, the policy's accel was held 1.1 s behind a leader); it ships under the lane habits of"
+    " the stop after (README, the traffic driver), which `make pretrained` now trains under too, so a"
+    " rerun no longer rebuilds this file bit for bit\n"
     "- the issue-23 bars over many agent-hours per shield setting: docs/dense.md (`make dense`);"
     " flow against density: docs/flow.md (`make flow`)\n"
 )
