@@ -133,6 +133,51 @@ class CarFollowing:
     exponent: float = 4.0
 
 
+@dataclass(frozen=True)
+class FreeRoad:
+    """Each car's terms of the improved IDM that no leader changes (its speed against its desired
+    speed): `actuate_lanes` weighs up to ten leaders per car each step, under laws that differ only
+    in headway and standing gap, so these are worked out once for all of them."""
+
+    speed: np.ndarray  # [N] m/s
+    accel: np.ndarray  # [N] m/s^2 with nobody ahead
+    below: np.ndarray  # [N] bool: at or under the desired speed
+    loose_exponent: np.ndarray  # [N] of the leader's term while the gap is wider than wanted
+    law: CarFollowing  # whose accel, comfortable_decel and exponent these come from
+
+
+def free_road(speed: np.ndarray, desired_speed: np.ndarray, law: CarFollowing) -> FreeRoad:
+    a, b = law.accel, law.comfortable_decel
+    desired = np.maximum(desired_speed, 0.1)
+    below = speed <= desired
+    accel = np.where(
+        below,
+        a * (1.0 - (speed / desired) ** law.exponent),
+        -b * (1.0 - (desired / np.maximum(speed, 0.1)) ** (a * law.exponent / b)),
+    )
+    return FreeRoad(speed, accel, below, 2.0 * a / np.maximum(accel, 1e-9), law)
+
+
+def behind_leader(free: FreeRoad, gap: np.ndarray, leader_speed: np.ndarray, law: CarFollowing) -> np.ndarray:
+    """[N] acceleration by the improved IDM of cars whose free-road terms are `free`; `gap` is bumper
+    to bumper (+inf with no leader, then `leader_speed` is ignored), `leader_speed` has no NaN. `law`
+    may differ from `free.law` in its headway and standing gap only."""
+    a, b = law.accel, law.comfortable_decel
+    if (a, b, law.exponent) != (free.law.accel, free.law.comfortable_decel, free.law.exponent):
+        raise ValueError("behind_leader: the law's free-road terms differ from those worked out")
+    speed = free.speed
+    has_leader = np.isfinite(gap)
+    closing = speed - np.where(has_leader, leader_speed, speed)
+    wanted = law.min_gap + np.maximum(
+        speed * law.time_headway + speed * closing / (2.0 * np.sqrt(a * b)), 0.0
+    )
+    z = np.where(has_leader, wanted / np.maximum(np.where(has_leader, gap, 1.0), 0.1), 0.0)
+    pushed = a * (1.0 - z**2)
+    close = np.where(free.below, pushed, free.accel + pushed)
+    loose = np.where(free.below, free.accel * (1.0 - np.minimum(z, 1.0) ** free.loose_exponent), free.accel)
+    return np.where(z >= 1.0, close, loose)
+
+
 def following_accel(
     speed: np.ndarray,
     desired_speed: np.ndarray,
@@ -141,25 +186,8 @@ def following_accel(
     law: CarFollowing,
 ) -> np.ndarray:
     """[N] acceleration by the improved IDM; `gap` is bumper to bumper (+inf with no leader, then
-    `leader_speed` is ignored)."""
-    a, b = law.accel, law.comfortable_decel
-    desired = np.maximum(desired_speed, 0.1)
-    has_leader = np.isfinite(gap)
-    closing = speed - np.where(has_leader, np.nan_to_num(leader_speed), speed)
-    wanted = law.min_gap + np.maximum(
-        speed * law.time_headway + speed * closing / (2.0 * np.sqrt(a * b)), 0.0
-    )
-    z = np.where(has_leader, wanted / np.maximum(np.where(has_leader, gap, 1.0), 0.1), 0.0)
-    below = speed <= desired
-    free = np.where(
-        below,
-        a * (1.0 - (speed / desired) ** law.exponent),
-        -b * (1.0 - (desired / np.maximum(speed, 0.1)) ** (a * law.exponent / b)),
-    )
-    safe_free = np.maximum(free, 1e-9)
-    close = np.where(below, a * (1.0 - z**2), free + a * (1.0 - z**2))
-    loose = np.where(below, free * (1.0 - np.minimum(z, 1.0) ** (2.0 * a / safe_free)), free)
-    return np.where(z >= 1.0, close, loose)
+    `leader_speed` is ignored; NaN counts as a standing leader)."""
+    return behind_leader(free_road(speed, desired_speed, law), gap, np.nan_to_num(leader_speed), law)
 
 
 @dataclass(frozen=True)
@@ -225,10 +253,37 @@ def new_follower_accel(
     speed: np.ndarray, follower_gap: np.ndarray, follower_speed: np.ndarray, law: CarFollowing
 ) -> np.ndarray:
     """[N] the acceleration the car behind in a neighbour lane would need were the car to move in
-    front of it (0 where nobody is behind), by the same car-following law at its own speed."""
-    behind = np.nan_to_num(follower_speed)
-    braking = following_accel(behind, behind, follower_gap, speed, law)
+    front of it (0 where nobody is behind), by the same car-following law at its own speed;
+    `follower_speed` has no NaN."""
+    braking = behind_leader(free_road(follower_speed, follower_speed, law), follower_gap, speed, law)
     return np.where(np.isfinite(follower_gap), braking, 0.0)
+
+
+@dataclass(frozen=True)
+class LaneTraffic:
+    """Each car and its six neighbours (lanes.NEIGHBOUR_SLOTS) as the rules of `actuate_lanes` weigh
+    them, with the accelerations several rules share worked out once per step (the fast- and
+    slow-side leaders serve both the gap check and the lane the car heads for, the slow-side
+    follower both the gap check and keeping right)."""
+
+    speed: np.ndarray  # [N] m/s
+    gap: np.ndarray  # [N, 6] bumper to bumper: +inf nobody, 0 alongside or no lane
+    other_speed: np.ndarray  # [N, 6] m/s, NaN where nobody is
+    known_speed: np.ndarray  # [N, 6] other_speed with NaN as 0 (a missing lane is a standing wall)
+    free: FreeRoad  # the car's own terms of the car-following law
+    lead_accel: np.ndarray  # [N, 3] behind the leader in the own, fast-side and slow-side lane
+    follower_accel: np.ndarray  # [N, 2] the new follower's in the fast-side and slow-side lane
+
+
+def lane_traffic(
+    speed: np.ndarray, desired_speed: np.ndarray, gap: np.ndarray, other_speed: np.ndarray, law: CarFollowing
+) -> LaneTraffic:
+    """The cars' LaneTraffic; `gap`/`other_speed` [N, 6] in lanes.NEIGHBOUR_SLOTS order."""
+    known = np.nan_to_num(other_speed)
+    free = free_road(speed, desired_speed, law)
+    lead = np.stack([behind_leader(free, gap[:, c], known[:, c], law) for c in (0, 2, 4)], axis=1)
+    follower = np.stack([new_follower_accel(speed, gap[:, c], known[:, c], law) for c in (3, 5)], axis=1)
+    return LaneTraffic(speed, gap, other_speed, known, free, lead, follower)
 
 
 def look_ahead(speed: np.ndarray, lateral: LaneDriving) -> np.ndarray:
@@ -238,35 +293,30 @@ def look_ahead(speed: np.ndarray, lateral: LaneDriving) -> np.ndarray:
 
 
 def gap_acceptable(
-    speed: np.ndarray,
-    desired_speed: np.ndarray,
-    gap: np.ndarray,
-    other_speed: np.ndarray,
-    lateral: LaneDriving,
-    merging: np.ndarray | None = None,
+    traffic: LaneTraffic, lateral: LaneDriving, merging: np.ndarray | None = None
 ) -> np.ndarray:
     """[N, 2] bool: whether the fast-side (column 0) and slow-side (column 1) lane have room to
     change into, as a driver checks it: nobody alongside, and neither the new leader nor the new
     follower would make the car or its follower brake harder than `safe_decel` (the safety
     criterion of MOBIL, Kesting, Treiber and Helbing 2007), nor would a faster new follower come
     alongside within `change_time` (a follower that sees the car only once it is over the line,
-    as an agent does, may not brake in time). `gap`/`other_speed` [N, 6] in
-    lanes.NEIGHBOUR_SLOTS order (gap 0: alongside, or no lane). Where `merging` [N, 2] (a car whose
-    lane ends, towards the side it leaves to), the car's own braking is judged behind the new leader
-    at `let_in_headway`, the gap it falls in to: by the full headway no gap behind a car beside it
-    at its own speed is ever room (the car stood at the end of a dropped lane)."""
-    law, out = lateral.following, np.zeros((len(speed), 2), bool)
+    as an agent does, may not brake in time). Gap 0 in `traffic`: alongside, or no lane. Where
+    `merging` [N, 2] (a car whose lane ends, towards the side it leaves to), the car's own braking is
+    judged behind the new leader at `let_in_headway`, the gap it falls in to: by the full headway no
+    gap behind a car beside it at its own speed is ever room (the car stood at the end of a dropped
+    lane)."""
+    t, law = traffic, lateral.following
+    out = np.zeros((len(t.speed), 2), bool)
     courtesy = replace(law, time_headway=lateral.let_in_headway)
     for side, (lead, follow) in enumerate(((2, 3), (4, 5))):
-        own = following_accel(speed, desired_speed, gap[:, lead], other_speed[:, lead], law)
+        own, theirs = t.lead_accel[:, side + 1], t.follower_accel[:, side]
         if merging is not None and merging[:, side].any():
-            behind = following_accel(speed, desired_speed, gap[:, lead], other_speed[:, lead], courtesy)
+            behind = behind_leader(t.free, t.gap[:, lead], t.known_speed[:, lead], courtesy)
             own = np.where(merging[:, side], behind, own)
-        theirs = new_follower_accel(speed, gap[:, follow], other_speed[:, follow], law)
-        out[:, side] = (gap[:, lead] > 0) & (gap[:, follow] > 0) & (own >= -lateral.safe_decel)
+        out[:, side] = (t.gap[:, lead] > 0) & (t.gap[:, follow] > 0) & (own >= -lateral.safe_decel)
         out[:, side] &= theirs >= -lateral.safe_decel
-        closing = np.maximum(np.nan_to_num(other_speed[:, follow]) - speed, 0.0)
-        out[:, side] &= gap[:, follow] > law.min_gap + closing * lateral.change_time
+        closing = np.maximum(t.known_speed[:, follow] - t.speed, 0.0)
+        out[:, side] &= t.gap[:, follow] > law.min_gap + closing * lateral.change_time
     return out
 
 
@@ -332,21 +382,17 @@ def lane_clear(
 
 
 def slow_side_free(
-    speed: np.ndarray,
-    gap: np.ndarray,
-    other_speed: np.ndarray,
-    lateral: LaneDriving,
-    lane_leads_on: np.ndarray | None = None,
+    traffic: LaneTraffic, lateral: LaneDriving, lane_leads_on: np.ndarray | None = None
 ) -> np.ndarray:
     """[N] bool: the slow-side lane is clear (`lane_clear`),
     nobody behind there who would have to brake for the car moving in (`polite_decel`): keeping
     right is no reason to cut in; and that lane leads on along the route as far as the own one does
     and at least `keep_right_reach` (an exit, a lane drop or an acceleration lane is not kept to).
-    `gap`/`other_speed` [N, 6] as in `gap_acceptable` (gap 0 = no lane or alongside);
-    `lane_leads_on` [N, 3] metres (own, fast side, slow side), None: every lane leads on."""
-    theirs = new_follower_accel(speed, gap[:, 5], other_speed[:, 5], lateral.following)
-    clear = lane_clear(speed, gap[:, 4], other_speed[:, 4], lateral)
-    free = clear & (gap[:, 5] > 0) & (theirs >= -lateral.polite_decel)
+    Gap 0 in `traffic`: no lane, or alongside; `lane_leads_on` [N, 3] metres (own, fast side, slow
+    side), None: every lane leads on."""
+    t = traffic
+    clear = lane_clear(t.speed, t.gap[:, 4], t.other_speed[:, 4], lateral)
+    free = clear & (t.gap[:, 5] > 0) & (t.follower_accel[:, 1] >= -lateral.polite_decel)
     if lane_leads_on is not None:
         slow = lane_leads_on[:, 2]
         free &= (slow >= lane_leads_on[:, 0]) & (slow >= lateral.keep_right_reach)
@@ -354,56 +400,46 @@ def slow_side_free(
 
 
 def held_up(
-    speed: np.ndarray,
+    traffic: LaneTraffic,
     desired_speed: np.ndarray,
-    gap: np.ndarray,
-    other_speed: np.ndarray,
     lateral: LaneDriving,
     pass_margin: np.ndarray | float | None = None,
 ) -> np.ndarray:
     """[N] bool: a leader within `look_ahead` drives slower than the car wants by more than
     `pass_margin` (m/s, per agent; None: `lateral.pass_margin`), and the fast-side lane is better:
-    free for `keep_right_catch_up_s` at the car's speed, or its leader faster than the own one by
-    as much. The reason to move to the fast side."""
+    clear (`lane_clear`), or its leader faster than the own one by as much. The reason to move to
+    the fast side."""
+    t = traffic
     margin = lateral.pass_margin if pass_margin is None else pass_margin
-    near = np.isfinite(gap[:, 0]) & (gap[:, 0] < look_ahead(speed, lateral))
-    lead_speed = np.nan_to_num(other_speed[:, 0], nan=np.inf)
-    fast_speed = np.nan_to_num(other_speed[:, 2], nan=np.inf)
-    return (
-        near
-        & (lead_speed < desired_speed - margin)
-        & (lane_clear(speed, gap[:, 2], other_speed[:, 2], lateral) | (fast_speed > lead_speed + margin))
-    )
+    near = np.isfinite(t.gap[:, 0]) & (t.gap[:, 0] < look_ahead(t.speed, lateral))
+    lead_speed = np.nan_to_num(t.other_speed[:, 0], nan=np.inf)
+    fast_speed = np.nan_to_num(t.other_speed[:, 2], nan=np.inf)
+    clear = lane_clear(t.speed, t.gap[:, 2], t.other_speed[:, 2], lateral)
+    better = clear | (fast_speed > lead_speed + margin)
+    return near & (lead_speed < desired_speed - margin) & better
 
 
 def not_undertaking(
-    speed: np.ndarray,
-    desired_speed: np.ndarray,
-    lead_gap: np.ndarray,
-    lead_speed: np.ndarray,
-    lateral: LaneDriving,
+    traffic: LaneTraffic, lateral: LaneDriving, far_fast_leader: tuple[np.ndarray, np.ndarray] | None = None
 ) -> np.ndarray:
-    """[N] the acceleration that keeps behind the leaders on the fast side ([N, K] gaps and speeds:
-    the fast-side lane's and those of the lanes beyond) while they drive faster than
+    """[N] the acceleration that keeps behind the fast-side lane's leader and `far_fast_leader`
+    ([N] gap, [N] speed: the nearest in the lanes beyond; None: none) while they drive faster than
     `no_undertaking_above` (+inf where there is none, or they are slower: passing on the slow side is
     allowed in a queue). The car may close up beside them, so the gap kept is short."""
+    t = traffic
+    leaders = [(t.gap[:, 2], t.known_speed[:, 2])]
+    if far_fast_leader is not None:
+        leaders.append((far_fast_leader[0], np.nan_to_num(far_fast_leader[1])))
     diagonal = replace(lateral.following, time_headway=lateral.diagonal_headway, min_gap=0.0)
-    out = np.full(len(speed), np.inf)
-    for gap, speed_ahead in zip(lead_gap.T, np.nan_to_num(lead_speed).T, strict=True):
+    out = np.full(len(t.speed), np.inf)
+    for gap, speed_ahead in leaders:
         applies = np.isfinite(gap) & (gap > 0) & (speed_ahead > lateral.no_undertaking_above)
-        behind = following_accel(speed, desired_speed, np.where(applies, gap, np.inf), speed_ahead, diagonal)
+        behind = behind_leader(t.free, np.where(applies, gap, np.inf), speed_ahead, diagonal)
         out = np.minimum(out, np.where(applies, behind, np.inf))
     return out
 
 
-def letting_in(
-    speed: np.ndarray,
-    desired_speed: np.ndarray,
-    gap: np.ndarray,
-    other_speed: np.ndarray,
-    lane_leads_on: np.ndarray,
-    lateral: LaneDriving,
-) -> np.ndarray:
+def letting_in(traffic: LaneTraffic, lane_leads_on: np.ndarray, lateral: LaneDriving) -> np.ndarray:
     """[N] the acceleration that lets a car merge in front, zip fashion: a car between the standing
     gap it would take and `let_in_gap` ahead in a neighbour lane that ends within max(`ending_lane_m`,
     `ending_lane_s` at speed), and sooner than the own lane, is followed as a leader, braking no
@@ -411,25 +447,25 @@ def letting_in(
     through lane and an ending lane take turns; without this a lane drop in dense traffic filled the
     ending lane with cars waiting for a gap nobody opened. `lane_leads_on` [N, 3] metres (own, fast
     side, slow side)."""
-    soon = np.maximum(lateral.ending_lane_m, lateral.ending_lane_s * speed)
+    t = traffic
+    soon = np.maximum(lateral.ending_lane_m, lateral.ending_lane_s * t.speed)
     courtesy = replace(
         lateral.following, time_headway=lateral.let_in_headway, min_gap=lateral.following.min_gap + 1.0
     )
-    out = np.full(len(speed), np.inf)
+    out = np.full(len(t.speed), np.inf)
     for column, lane in ((2, 1), (4, 2)):
-        there = np.isfinite(other_speed[:, column]) & (gap[:, column] < lateral.let_in_gap)
-        there &= gap[:, column] > lateral.following.min_gap  # one nearer (or alongside) is passed
+        there = np.isfinite(t.other_speed[:, column]) & (t.gap[:, column] < lateral.let_in_gap)
+        there &= t.gap[:, column] > lateral.following.min_gap  # one nearer (or alongside) is passed
         ending = (lane_leads_on[:, lane] < soon) & (lane_leads_on[:, lane] < lane_leads_on[:, 0])
         behind = yielding(
-            speed, desired_speed, gap[:, column], other_speed[:, column], there & ending, courtesy, lateral
+            t.free, t.gap[:, column], t.known_speed[:, column], there & ending, courtesy, lateral
         )
         out = np.minimum(out, behind)
     return out
 
 
 def yielding(
-    speed: np.ndarray,
-    desired_speed: np.ndarray,
+    free: FreeRoad,
     leader_gap: np.ndarray,
     leader_speed: np.ndarray,
     applies: np.ndarray,
@@ -437,32 +473,25 @@ def yielding(
     lateral: LaneDriving,
 ) -> np.ndarray:
     """[N] the acceleration that keeps a car behind a leader it yields to (`law`: a courtesy
-    headway) where `applies`, braking no harder than `safe_decel`; +inf elsewhere."""
-    follow = following_accel(
-        speed, desired_speed, np.where(applies, leader_gap, np.inf), np.nan_to_num(leader_speed), law
-    )
+    headway) where `applies`, braking no harder than `safe_decel`; +inf elsewhere. `leader_speed`
+    has no NaN."""
+    follow = behind_leader(free, np.where(applies, leader_gap, np.inf), leader_speed, law)
     return np.where(applies, np.maximum(follow, -lateral.safe_decel), np.inf)
 
 
-def falling_in(
-    speed: np.ndarray,
-    desired_speed: np.ndarray,
-    gap: np.ndarray,
-    other_speed: np.ndarray,
-    waiting: np.ndarray,
-    lateral: LaneDriving,
-) -> np.ndarray:
+def falling_in(traffic: LaneTraffic, waiting: np.ndarray, lateral: LaneDriving) -> np.ndarray:
     """[N] the acceleration of a car that must leave its ending lane (`waiting` [N]: +1 to the fast
     side, -1 to the slow side, 0 not waiting) and has no gap yet: it falls in behind the nearest car
     ahead of or alongside it in that lane, as the car the through lane lets in does, braking no harder
     than `safe_decel` (+inf where it is not waiting). Without this a car matched its speed to the
     platoon beside it and reached the end of its lane still alongside, where it stood."""
-    rows = np.arange(len(speed))
+    t = traffic
+    rows = np.arange(len(t.speed))
     column = np.where(waiting > 0, 2, 4)
-    leader_gap, leader_speed = gap[rows, column], other_speed[rows, column]
+    leader_gap, leader_speed = t.gap[rows, column], t.other_speed[rows, column]
     applies = (waiting != 0) & np.isfinite(leader_speed) & np.isfinite(leader_gap)
     courtesy = replace(lateral.following, time_headway=lateral.let_in_headway)
-    return yielding(speed, desired_speed, leader_gap, leader_speed, applies, courtesy, lateral)
+    return yielding(t.free, leader_gap, t.known_speed[rows, column], applies, courtesy, lateral)
 
 
 def lateral_profile(
@@ -551,6 +580,7 @@ def actuate_lanes(
     drivers and of SUMO's do.
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
+    traffic = lane_traffic(speed, desired_speed, gap, other_speed, lateral.following)
     leave, leaving = None, None
     if lateral.keep_right and lane_leads_on is not None:
         soon = np.maximum(lateral.ending_lane_m, lateral.ending_lane_s * speed)
@@ -559,17 +589,17 @@ def actuate_lanes(
         leave = np.where(ending & (lane_leads_on[:, 1] >= soon), 1, 0)
         leave = np.where(ending & (leave == 0) & (lane_leads_on[:, 2] >= soon), -1, leave)
         leaving = leave[:, None] == np.array([1, -1])  # [N, 2]: fast, slow side
-    acceptable = gap_acceptable(speed, desired_speed, gap, other_speed, lateral, leaving)
+    acceptable = gap_acceptable(traffic, lateral, leaving)
     if leaving is not None and lane_leads_on is not None:  # nor into a lane that ends before long
         acceptable &= lane_leads_on[:, 1:] >= soon[:, None]
         # nor, unless the own lane ends, into one that ends well before it (a weave's, an exit's)
         shorter = lane_leads_on[:, 1:] < lane_leads_on[:, :1] - lateral.shorter_lane_m
         acceptable &= ~shorter | leaving
-    free = slow_side_free(speed, gap, other_speed, lateral, lane_leads_on) if lateral.keep_right else None
+    free = slow_side_free(traffic, lateral, lane_leads_on) if lateral.keep_right else None
     if free is not None and habits is not None:
         free &= habits.keeps_right
     margin = None if habits is None else habits.pass_margin
-    held = held_up(speed, desired_speed, gap, other_speed, lateral, margin) if lateral.keep_right else None
+    held = held_up(traffic, desired_speed, lateral, margin) if lateral.keep_right else None
     if habits is not None and held is not None:  # the slow side is the rules' alone
         steer = np.where(habits.passes & held, 1.0, np.maximum(steer, 0.0))
     heading = lane_intent(
@@ -586,37 +616,21 @@ def actuate_lanes(
         leave,
         on_normal_edge,
     )
-    rows = np.arange(len(steer))
-    target_column = np.where(heading > 0, 2, np.where(heading < 0, 4, 0))  # the leader there
-    follow = following_accel(speed, desired_speed, gap[:, 0], other_speed[:, 0], lateral.following)
-    into = following_accel(
-        speed,
-        desired_speed,
-        gap[rows, target_column],
-        other_speed[rows, target_column],
-        lateral.following,
-    )
+    follow = traffic.lead_accel[:, 0]
+    into = traffic.lead_accel[np.arange(len(steer)), np.where(heading > 0, 1, np.where(heading < 0, 2, 0))]
     accel = np.clip(actions[:, 1], 0.0, 1.0)
     brake = np.clip(actions[:, 2], 0.0, 1.0)
     adjust = 2.0 * lateral.accel_span * (accel - 0.5) - car.max_brake * brake
     if lateral.keep_right:  # the target lane's leader and the fast-side leader bound the policy too
         bound = np.where(heading != 0, into, np.inf)
-        fast_gap, fast_speed = gap[:, 2:3], other_speed[:, 2:3]
-        if far_fast_leader is not None:
-            fast_gap = np.column_stack([fast_gap, far_fast_leader[0]])
-            fast_speed = np.column_stack([fast_speed, far_fast_leader[1]])
-        bound = np.minimum(bound, not_undertaking(speed, desired_speed, fast_gap, fast_speed, lateral))
+        bound = np.minimum(bound, not_undertaking(traffic, lateral, far_fast_leader))
         if lane_leads_on is not None:
-            bound = np.minimum(
-                bound, letting_in(speed, desired_speed, gap, other_speed, lane_leads_on, lateral)
-            )
+            bound = np.minimum(bound, letting_in(traffic, lane_leads_on, lateral))
         if leave is not None:
             waiting = np.where(heading == 0, leave, 0)
-            bound = np.minimum(bound, falling_in(speed, desired_speed, gap, other_speed, waiting, lateral))
+            bound = np.minimum(bound, falling_in(traffic, waiting, lateral))
         closest = replace(lateral.following, time_headway=lateral.min_time_headway)  # no tailgating
-        bound = np.minimum(
-            bound, following_accel(speed, desired_speed, gap[:, 0], other_speed[:, 0], closest)
-        )
+        bound = np.minimum(bound, behind_leader(traffic.free, gap[:, 0], traffic.known_speed[:, 0], closest))
         command = np.minimum(follow + adjust, bound)  # closest >= follow: it only limits a push
     else:
         command = np.minimum(follow, into) + adjust

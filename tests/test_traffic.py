@@ -20,6 +20,7 @@ from behaviors.actuation import (
     following_accel,
     gap_acceptable,
     lane_intent,
+    lane_traffic,
     letting_in,
 )
 from behaviors.control import Fleet
@@ -328,7 +329,7 @@ def test_a_change_waits_for_a_gap_a_driver_would_take():
     gap[1, 2:4] = 0.0  # a car alongside in the fast lane
     gap[2, 3], other[2, 3] = 8.0, 40.0  # a fast car 8 m behind in the fast lane, 10 m/s faster
     gap[3, 2], other[3, 2] = 60.0, 28.0  # the fast lane's leader 60 m ahead, a little slower
-    fast_ok = gap_acceptable(speed, desired, gap, other, lateral)[:, 0]
+    fast_ok = gap_acceptable(lane_traffic(speed, desired, gap, other, lateral.following), lateral)[:, 0]
     assert fast_ok.tolist() == [True, False, False, True]
     car = CarModel()
     waiting = actuate_lanes(
@@ -416,12 +417,12 @@ def test_a_car_ahead_in_a_lane_that_ends_is_let_in_and_one_alongside_is_passed()
     ends = np.array([[2000.0, 2000.0, 120.0]])  # the slow-side lane ends 120 m on, the own lane leads on
     speed, desired = np.array([6.0]), np.array([30.0])
     waiting = leaders_of(slow_lead=(4, 6.0, 0.0))  # 6 m ahead, standing at the end of its lane
-    brake = letting_in(speed, desired, *waiting, ends, ruled)
+    brake = letting_in(lane_traffic(speed, desired, *waiting, ruled.following), ends, ruled)
     assert -ruled.safe_decel <= brake[0] < -0.5  # it holds back to leave the gap
     alongside = leaders_of(slow_lead=(4, 1.0, 0.0))  # too near to leave it a gap: passed
-    assert letting_in(speed, desired, *alongside, ends, ruled)[0] == np.inf
+    assert letting_in(lane_traffic(speed, desired, *alongside, ruled.following), ends, ruled)[0] == np.inf
     through = np.array([[2000.0, 2000.0, 2000.0]])  # the slow-side lane leads on: nobody waits to merge
-    assert letting_in(speed, desired, *waiting, through, ruled)[0] == np.inf
+    assert letting_in(lane_traffic(speed, desired, *waiting, ruled.following), through, ruled)[0] == np.inf
 
 
 def test_a_car_whose_lane_ends_falls_in_behind_the_car_beside_it_and_moves_out_600_m_ahead():
@@ -429,10 +430,14 @@ def test_a_car_whose_lane_ends_falls_in_behind_the_car_beside_it_and_moves_out_6
     speed, desired = np.array([25.0]), np.array([30.0])
     beside = leaders_of(fast_lead=(2, 7.0, 25.0), fast_follow=(3, 11.0, 25.5))  # no gap: a platoon
     to_fast = np.array([1])
-    brake = falling_in(speed, desired, *beside, to_fast, ruled)
+    brake = falling_in(lane_traffic(speed, desired, *beside, ruled.following), to_fast, ruled)
     assert -ruled.safe_decel <= brake[0] < -0.5  # drops back behind the car ahead in the target lane
-    assert falling_in(speed, desired, *beside, np.array([0]), ruled)[0] == np.inf  # not waiting
-    assert falling_in(speed, desired, *NO_LEADERS, to_fast, ruled)[0] == np.inf  # nobody there
+    assert (
+        falling_in(lane_traffic(speed, desired, *beside, ruled.following), np.array([0]), ruled)[0] == np.inf
+    )  # not waiting
+    assert (
+        falling_in(lane_traffic(speed, desired, *NO_LEADERS, ruled.following), to_fast, ruled)[0] == np.inf
+    )  # nobody there
 
     def change_begins(leads_on: float, leaders=NO_LEADERS) -> tuple[int, float]:
         out = actuate_lanes(
@@ -1001,8 +1006,9 @@ def test_a_car_leaving_its_lane_takes_the_gap_it_falls_in_to_and_no_lane_ending_
     ruled = LaneDriving()
     speed, desired = np.array([29.0]), np.array([30.0])
     gap, other = leaders_of(fast_lead=(2, 17.0, 29.0), fast_follow=(3, 40.0, 29.0))  # 0.5 s behind one
-    assert not gap_acceptable(speed, desired, gap, other, ruled)[0, 0]  # too short to pass into
-    assert gap_acceptable(speed, desired, gap, other, ruled, np.array([[True, False]]))[0, 0]  # to merge
+    traffic = lane_traffic(speed, desired, gap, other, ruled.following)
+    assert not gap_acceptable(traffic, ruled)[0, 0]  # too short to pass into
+    assert gap_acceptable(traffic, ruled, np.array([[True, False]]))[0, 0]  # to merge into
 
     def heading(leads_on: list[float]) -> int:
         out = actuate_lanes(
