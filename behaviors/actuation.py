@@ -434,6 +434,8 @@ def not_undertaking(
     out = np.full(len(t.speed), np.inf)
     for gap, speed_ahead in leaders:
         applies = np.isfinite(gap) & (gap > 0) & (speed_ahead > lateral.no_undertaking_above)
+        if not applies.any():
+            continue
         behind = behind_leader(t.free, np.where(applies, gap, np.inf), speed_ahead, diagonal)
         out = np.minimum(out, np.where(applies, behind, np.inf))
     return out
@@ -475,6 +477,8 @@ def yielding(
     """[N] the acceleration that keeps a car behind a leader it yields to (`law`: a courtesy
     headway) where `applies`, braking no harder than `safe_decel`; +inf elsewhere. `leader_speed`
     has no NaN."""
+    if not applies.any():  # most steps: nobody to yield to (and no law to work out)
+        return np.full(len(applies), np.inf)
     follow = behind_leader(free, np.where(applies, leader_gap, np.inf), leader_speed, law)
     return np.where(applies, np.maximum(follow, -lateral.safe_decel), np.inf)
 

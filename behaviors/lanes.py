@@ -206,9 +206,8 @@ def surroundings(
     neighbour search already made with at least SEARCH_RADIUS (one search serves the shield too).
     """
     n = len(agents.speed)
-    gap = np.full((n, 6), np.inf)
-    other = np.full((n, 6), np.nan)
-    far_gap, far_speed = np.full(n, np.inf), np.full(n, np.nan)
+    gap = np.full((n, 7), np.inf)  # NEIGHBOUR_SLOTS, then the nearest leader beyond the fast-side lane
+    other = np.full((n, 7), np.nan)
     if near is None:
         near = neighbours(agents.front, positions, SEARCH_RADIUS, exclude=agent_rows)
     q, m, dx, dy, _ = within(near, SEARCH_RADIUS)
@@ -225,24 +224,25 @@ def surroundings(
         slots, pairs = [], []
         for side, column in ((0, 0), (1, 2), (-1, 4)):
             k = np.flatnonzero((lane_units + half > side - 0.5) & (lane_units - half < side + 0.5))
-            slots.append(q[k] * 6 + column + behind[k])  # leader column, or the follower one beside it
+            slots.append(q[k] * 7 + column + behind[k])  # leader column, or the follower one beside it
             pairs.append(k)
+        k = np.flatnonzero((lane_units - half > 1.5) & ~behind)
+        slots.append(q[k] * 7 + 6)
+        pairs.append(k)
         slot, pair = np.concatenate(slots), np.concatenate(pairs)
-        found, nearest = nearest_per_slot(n * 6, slot, distance[pair])
+        found, nearest = nearest_per_slot(n * 7, slot, distance[pair])
         gap.ravel()[found] = distance[pair[nearest]]
         other.ravel()[found] = speeds[m[pair[nearest]]]
-        k = np.flatnonzero((lane_units - half > 1.5) & ~behind)
-        found, nearest = nearest_per_slot(n, q[k], distance[k])
-        far_gap[found] = distance[k[nearest]]
-        far_speed[found] = speeds[m[k[nearest]]]
     gap = np.maximum(gap, 0.0)
+    far_gap, far_speed = gap[:, 6], other[:, 6]
+    gap, other = gap[:, :6], other[:, :6]
     fast_missing = agents.lane_number >= agents.lanes - 1
     slow_missing = agents.lane_number <= 0
     gap[fast_missing, 2:4] = 0.0
     gap[slow_missing, 4:6] = 0.0
     other[fast_missing, 2:4] = np.nan
     other[slow_missing, 4:6] = np.nan
-    return Surroundings(gap, other, np.maximum(far_gap, 0.0), far_speed)
+    return Surroundings(gap, other, far_gap, far_speed)
 
 
 def observe_lanes(agents: LaneAgents, around: Surroundings) -> np.ndarray:
