@@ -178,6 +178,12 @@ def behind_leader(free: FreeRoad, gap: np.ndarray, leader_speed: np.ndarray, law
     return np.where(z >= 1.0, close, loose)
 
 
+def nan_as(values: np.ndarray, fill: float) -> np.ndarray:
+    """`values` with NaN (nobody there) as `fill`: np.nan_to_num without its handling of infinities,
+    which speeds never hold, at half the cost."""
+    return np.where(np.isnan(values), fill, values)
+
+
 def following_accel(
     speed: np.ndarray,
     desired_speed: np.ndarray,
@@ -279,7 +285,7 @@ def lane_traffic(
     speed: np.ndarray, desired_speed: np.ndarray, gap: np.ndarray, other_speed: np.ndarray, law: CarFollowing
 ) -> LaneTraffic:
     """The cars' LaneTraffic; `gap`/`other_speed` [N, 6] in lanes.NEIGHBOUR_SLOTS order."""
-    known = np.nan_to_num(other_speed)
+    known = nan_as(other_speed, 0.0)
     free = free_road(speed, desired_speed, law)
     lead = np.stack([behind_leader(free, gap[:, c], known[:, c], law) for c in (0, 2, 4)], axis=1)
     follower = np.stack([new_follower_accel(speed, gap[:, c], known[:, c], law) for c in (3, 5)], axis=1)
@@ -377,7 +383,7 @@ def lane_clear(
 ) -> np.ndarray:
     """[N] bool: a neighbour lane's leader is beyond `look_ahead` and would not be caught up with
     within `keep_right_catch_up_s` (a driver does not change lanes only to be held up again)."""
-    closing = np.maximum(speed - np.nan_to_num(lead_speed, nan=np.inf), 0.0)
+    closing = np.maximum(speed - nan_as(lead_speed, np.inf), 0.0)
     return lead_gap > np.maximum(look_ahead(speed, lateral), closing * lateral.keep_right_catch_up_s)
 
 
@@ -412,8 +418,8 @@ def held_up(
     t = traffic
     margin = lateral.pass_margin if pass_margin is None else pass_margin
     near = np.isfinite(t.gap[:, 0]) & (t.gap[:, 0] < look_ahead(t.speed, lateral))
-    lead_speed = np.nan_to_num(t.other_speed[:, 0], nan=np.inf)
-    fast_speed = np.nan_to_num(t.other_speed[:, 2], nan=np.inf)
+    lead_speed = nan_as(t.other_speed[:, 0], np.inf)
+    fast_speed = nan_as(t.other_speed[:, 2], np.inf)
     clear = lane_clear(t.speed, t.gap[:, 2], t.other_speed[:, 2], lateral)
     better = clear | (fast_speed > lead_speed + margin)
     return near & (lead_speed < desired_speed - margin) & better
@@ -429,7 +435,7 @@ def not_undertaking(
     t = traffic
     leaders = [(t.gap[:, 2], t.known_speed[:, 2])]
     if far_fast_leader is not None:
-        leaders.append((far_fast_leader[0], np.nan_to_num(far_fast_leader[1])))
+        leaders.append((far_fast_leader[0], nan_as(far_fast_leader[1], 0.0)))
     diagonal = replace(lateral.following, time_headway=lateral.diagonal_headway, min_gap=0.0)
     out = np.full(len(t.speed), np.inf)
     for gap, speed_ahead in leaders:
