@@ -193,7 +193,7 @@ def following_accel(
 ) -> np.ndarray:
     """[N] acceleration by the improved IDM; `gap` is bumper to bumper (+inf with no leader, then
     `leader_speed` is ignored; NaN counts as a standing leader)."""
-    return behind_leader(free_road(speed, desired_speed, law), gap, np.nan_to_num(leader_speed), law)
+    return behind_leader(free_road(speed, desired_speed, law), gap, nan_as(leader_speed, 0.0), law)
 
 
 @dataclass(frozen=True)
@@ -290,6 +290,12 @@ def lane_traffic(
     lead = np.stack([behind_leader(free, gap[:, c], known[:, c], law) for c in (0, 2, 4)], axis=1)
     follower = np.stack([new_follower_accel(speed, gap[:, c], known[:, c], law) for c in (3, 5)], axis=1)
     return LaneTraffic(speed, gap, other_speed, known, free, lead, follower)
+
+
+def ends_soon(speed: np.ndarray, lateral: LaneDriving) -> np.ndarray:
+    """[N] metres: a lane that stops leading on within max(`ending_lane_m`, `ending_lane_s` at speed)
+    ends soon (no change goes into it; a car in it is let in)."""
+    return np.maximum(lateral.ending_lane_m, lateral.ending_lane_s * speed)
 
 
 def look_ahead(speed: np.ndarray, lateral: LaneDriving) -> np.ndarray:
@@ -456,7 +462,7 @@ def letting_in(traffic: LaneTraffic, lane_leads_on: np.ndarray, lateral: LaneDri
     ending lane with cars waiting for a gap nobody opened. `lane_leads_on` [N, 3] metres (own, fast
     side, slow side)."""
     t = traffic
-    soon = np.maximum(lateral.ending_lane_m, lateral.ending_lane_s * t.speed)
+    soon = ends_soon(t.speed, lateral)
     courtesy = replace(
         lateral.following, time_headway=lateral.let_in_headway, min_gap=lateral.following.min_gap + 1.0
     )
@@ -591,20 +597,19 @@ def actuate_lanes(
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
     traffic = lane_traffic(speed, desired_speed, gap, other_speed, lateral.following)
-    leave, leaving = None, None
+    leave, leaving, lanes_go_on = None, None, True
     if lateral.keep_right and lane_leads_on is not None:
-        soon = np.maximum(lateral.ending_lane_m, lateral.ending_lane_s * speed)
+        soon = ends_soon(speed, lateral)
         leave_within = np.maximum(lateral.leave_ending_m, lateral.leave_ending_s * speed)
         ending = lane_leads_on[:, 0] < leave_within  # out of the own lane, if it ends, early on
         leave = np.where(ending & (lane_leads_on[:, 1] >= soon), 1, 0)
         leave = np.where(ending & (leave == 0) & (lane_leads_on[:, 2] >= soon), -1, leave)
         leaving = leave[:, None] == np.array([1, -1])  # [N, 2]: fast, slow side
-    acceptable = gap_acceptable(traffic, lateral, leaving)
-    if leaving is not None and lane_leads_on is not None:  # nor into a lane that ends before long
-        acceptable &= lane_leads_on[:, 1:] >= soon[:, None]
-        # nor, unless the own lane ends, into one that ends well before it (a weave's, an exit's)
+        # no change into a lane that ends before long, nor, unless the own lane ends, into one that
+        # ends well before it (a weave's, an exit's)
         shorter = lane_leads_on[:, 1:] < lane_leads_on[:, :1] - lateral.shorter_lane_m
-        acceptable &= ~shorter | leaving
+        lanes_go_on = (lane_leads_on[:, 1:] >= soon[:, None]) & (~shorter | leaving)
+    acceptable = gap_acceptable(traffic, lateral, leaving) & lanes_go_on
     free = slow_side_free(traffic, lateral, lane_leads_on) if lateral.keep_right else None
     if free is not None and habits is not None:
         free &= habits.keeps_right
