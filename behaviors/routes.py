@@ -7,7 +7,7 @@ agents train where and as populate puts them.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -129,14 +129,16 @@ def lane_runs_out(
 def misplaced(
     sim: SumoSim,
     vehicles: VehicleState,
+    geometry: RoadGeometry,
     ids: list[str],
     agent: np.ndarray,
     keeper: np.ndarray | None = None,
 ) -> np.ndarray:
     """[N] bool: which of the cars SUMO just placed (`ids`; `agent` [N] marks the learned ones) are
     withdrawn and put elsewhere: too close to another car, an agent in a lane that runs out, or a
-    lane keeper (`keeper` [N], None: none) in the fast-most lane of a road of several: it would
-    only move out of it, which traffic coming onto a road from its slow side never has to."""
+    lane keeper (`keeper` [N], None: none) in the fast-most of several car lanes (as the keepers'
+    habits count lanes, in `geometry`): it would only move out of it, which traffic coming onto a
+    road from its slow side never has to."""
     rows = np.array([vehicles.row[v] for v in ids], np.int64)
     out = too_close(vehicles, rows)
     agents = [v for v, a in zip(ids, agent, strict=True) if a]
@@ -148,12 +150,8 @@ def misplaced(
         lane_pos, _ = sim.read_lane_places(agents)
         out[agent] |= lane_runs_out(lane_end, best_end, lane_pos, vehicles.speed[rows[agent]])
         if keeper is not None:
-            in_fast_most = [fast_most(lane, a) for a, lane in zip(ahead, lanes, strict=True)]
-            out[agent] |= keeper[agent] & np.array(in_fast_most, bool)
+            lane_rows = np.array([geometry.lane_index.get(lane, -1) for lane in lanes], np.int64)
+            count = np.where(lane_rows >= 0, geometry.lane_num_lanes[lane_rows], 0)
+            fast_most = (count > 1) & (geometry.lane_number[lane_rows] == count - 1)
+            out[agent] |= keeper[agent] & fast_most
     return out
-
-
-def fast_most(lane: str, edge_lanes: Iterable[str]) -> bool:
-    """Whether `lane` is the highest-numbered of `edge_lanes` (its edge's), there being several."""
-    numbers = [int(other.rpartition("_")[2]) for other in edge_lanes]
-    return len(numbers) > 1 and int(lane.rpartition("_")[2]) == max(numbers)
