@@ -62,6 +62,8 @@ DETECTOR_M = 300.0
 DISCHARGE_DENSITY = 27.0
 STARTUP_PER_LANE = 3
 """The first queued cars per lane to pass are left out of the discharge rate (start-up loss)."""
+AGENT_GROUPS = ("keepers", "overtakers")
+"""realism.group_names' names for the learned cars."""
 STAND_SPEED = 0.1
 STAND_S = 30.0
 
@@ -209,7 +211,7 @@ def agents_headways(df: pd.DataFrame, net: Path) -> dict:
     """The learned agents' (keepers and overtakers pooled) median time headway and share of
     following time below THW_LIMIT, by the realism report's rules (issue 23's headway bar)."""
     follow = headways(prepare(df, read_lanes(net)))
-    agents = follow.loc[follow["group"].isin(["keepers", "overtakers"]), "thw"]  # group_names' names
+    agents = follow.loc[follow["group"].isin(AGENT_GROUPS), "thw"]
     if agents.empty:
         return {"agents_thw": math.nan, "agents_thw_short": math.nan}
     return {"agents_thw": float(agents.median()), "agents_thw_short": float((agents < THW_LIMIT).mean())}
@@ -217,7 +219,7 @@ def agents_headways(df: pd.DataFrame, net: Path) -> dict:
 
 def agents_standing(df: pd.DataFrame, groups: pd.Series, after_s: float) -> int:
     """Agents that stood (speed < STAND_SPEED) STAND_S or more at a time after `after_s`."""
-    agents = df[groups.isin(["keepers", "overtakers"]).to_numpy() & (df["time"] >= after_s).to_numpy()]
+    agents = df[groups.isin(AGENT_GROUPS).to_numpy() & (df["time"] >= after_s).to_numpy()]
     if agents.empty:
         return 0
     agents = agents.sort_values(["id", "time"])
