@@ -1,13 +1,17 @@
 """Train the bundled policies and write their model card (`make pretrained`).
 
-The traffic driver's policy (traffic.pt, populate's default: keepers and overtakers in one
-network among SUMO's traffic on the family of training roads) trains on one core for the
-whole budget, or up to the hand-picked episode it ships (TRAFFIC_EPISODE). Beside it, on the
-other core, the paper's policies: lane keeping first (PS-DDPG, 6 agents on the ring), then
+By default the paper's policies: lane keeping first (PS-DDPG, 6 agents on the ring), then
 overtaking from the lane-keeping weights (the paper's curriculum) and multi-behaviour 4+4 from the
-same weights (the behaviour id's inputs start at zero). Each policy is evaluated without
-exploration; the safest, then most rewarded, saved checkpoint ships as actor-only weights in
-behaviors/pretrained/ (the traffic policy: TRAFFIC_EPISODE's, unless `--traffic-episode 0`).
+same weights (the behaviour id's inputs start at zero), two at a time. Each policy is evaluated
+without exploration; the safest, then most rewarded, saved checkpoint ships as actor-only weights
+in behaviors/pretrained/.
+
+`--stages traffic` (or `paper,traffic`) also trains the traffic driver's policy on one core, for
+the whole budget or up to `--traffic-episode`. The shipped traffic.pt is episode 120 of a seed-0
+run under earlier rules of the road, picked by hand by screens of dense traffic (its model card
+section, kept as it is while this stage does not run). Under today's rules the same command
+trains another policy, which screened far worse (docs/history.md), so the stage runs only when
+asked, and what it ships must be screened again.
 """
 
 from __future__ import annotations
@@ -54,30 +58,6 @@ TRAFFIC_ARGS = ["multi", "--driver", "traffic", "--scenario", "roads", "--overta
 wall-clock budget buys more experience), exploration decaying over 30,000 steps."""
 TRAFFIC_EVAL = EnvConfig(scenario="roads", driver="traffic", behaviour="multi", overtakers=4, keepers=4,
                          max_steps=500)  # fmt: skip
-
-
-TRAFFIC_EPISODE = 120
-"""The traffic run's checkpoint that ships as traffic.pt, picked by hand from the checkpoints of a
-seed-0 run by three screens of 100%-learned fleets (TRAFFIC_SCREENS); the run stops there. Seeded
-training repeats exactly: under the rules it was trained with (commit b5ba208) `make pretrained`
-rebuilt the same file; the lane habits since change its episodes, so a rerun trains another policy,
-to be screened again before it ships. Neighbouring checkpoints
-differ a lot in dense traffic, which the automatic pick (`--traffic-episode 0`: train for the whole
-budget, ship the safest on the training roads) does not see."""
-TRAFFIC_SCREENS = (
-    "- screens of episode 120 (100% learned, seed 0; `benchmarks/flow.py`'s runs): queue discharge on"
-    " the bundled highway 1,776 veh/h/lane (the previous traffic.pt 898; SUMO's cars 2,541 in"
-    " docs/flow.md); the highway at 20 veh/lane-km with the shield on 2,100 (previous 2,086, SUMO's"
-    " cars alone 2,043-2,056); a curved 4-lane motorway no policy trained on at 27 veh/lane-km without the"
-    " shield 2,568 with 2 losses (previous 2,523 with none). Episode 140 of the same run: 996, 660"
-    " and 806 with 18 losses\n"
-    "- trained under the rules of commit b5ba208 (every car kept right, overtakers wanted 0.95-1.0 of"
-    " the limit, the policy's accel was held 1.1 s behind a leader); it ships under the lane habits of"
-    " the stop after (README, the traffic driver), which `make pretrained` now trains under too, so a"
-    " rerun no longer rebuilds this file bit for bit\n"
-    "- the issue-23 bars over many agent-hours per shield setting: docs/dense.md (`make dense`);"
-    " flow against density: docs/flow.md (`make flow`)\n"
-)
 
 
 def traffic_command(runs: Path, seed: int, minutes: float, episode: int) -> list[str]:
@@ -200,13 +180,14 @@ def paper_stage(args: argparse.Namespace, minutes: list[float]) -> tuple[list[st
     return sections, results
 
 
-def kept_paper_sections() -> list[str]:
-    """The paper policies' sections of the current model card (when only the traffic stage runs)."""
+def kept_sections(traffic: bool) -> list[str]:
+    """The current model card's sections of the traffic policy (`traffic`) or of the paper's, for the
+    stage that does not run."""
     card = PRETRAINED / "MODEL_CARD.md"
     if not card.exists():
         return []
     parts = card.read_text().split("\n## ")[1:]
-    return ["## " + part.rstrip("\n") + "\n" for part in parts if not part.startswith(TRAFFIC_TITLE)]
+    return ["## " + part.rstrip("\n") + "\n" for part in parts if part.startswith(TRAFFIC_TITLE) == traffic]
 
 
 def main() -> None:
@@ -217,12 +198,9 @@ def main() -> None:
         "--minutes", default="8,12,20,60", help="budgets: lanekeeping,overtaking,multi,traffic"
     )
     parser.add_argument(
-        "--traffic-episode",
-        type=int,
-        default=TRAFFIC_EPISODE,
-        help="the traffic checkpoint to ship (0: pick)",
+        "--traffic-episode", type=int, default=0, help="the traffic run's last episode, shipped (0: pick)"
     )
-    parser.add_argument("--stages", default="paper,traffic", help="paper, traffic or both")
+    parser.add_argument("--stages", default="paper", help="paper, traffic or both (see the docstring)")
     parser.add_argument("--eval-episodes", type=int, default=5)
     parser.add_argument("--pick-only", action="store_true", help="re-evaluate existing runs, no training")
     args = parser.parse_args()
@@ -233,7 +211,7 @@ def main() -> None:
     traffic_start = time.perf_counter()
     training = "traffic" in stages and not args.pick_only
     traffic = subprocess.Popen(traffic_cmd) if training else None
-    sections, results = paper_stage(args, paper_minutes) if "paper" in stages else (kept_paper_sections(), {})
+    sections, results = paper_stage(args, paper_minutes) if "paper" in stages else (kept_sections(False), {})
     if "traffic" in stages:
         if traffic is not None and traffic.wait() != 0:
             raise SystemExit(f"training failed: {shlex.join(traffic_cmd)}")
@@ -243,18 +221,15 @@ def main() -> None:
         if args.traffic_episode:
             chosen = runs / "traffic" / "checkpoints" / f"episode_{args.traffic_episode:05d}.pt"
             m = mean_rows(evaluate(TRAFFIC_EVAL, load_policy(chosen).act, args.eval_episodes, s))
-            how, screens = "picked by hand from the run's checkpoints by the screens below", TRAFFIC_SCREENS
+            how = "the run's last; screen it in dense traffic (benchmarks/flow.py) before shipping"
         else:
-            (chosen, m), how, screens = (
-                pick(runs / "traffic", TRAFFIC_EVAL, s, args.eval_episodes),
-                AUTOMATIC_PICK,
-                "",
-            )
+            (chosen, m), how = pick(runs / "traffic", TRAFFIC_EVAL, s, args.eval_episodes), AUTOMATIC_PICK
         save_actor_only(chosen, PRETRAINED / "traffic.pt")
         results["traffic"] = m
-        section = card_section(TRAFFIC_TITLE, traffic_cmd, s, traffic_wall, runs / "traffic", chosen,
-                               {**m, "episodes": args.eval_episodes}, how)  # fmt: skip
-        sections.insert(0, section + screens)
+        sections.insert(0, card_section(TRAFFIC_TITLE, traffic_cmd, s, traffic_wall, runs / "traffic", chosen,
+                                        {**m, "episodes": args.eval_episodes}, how))  # fmt: skip
+    else:
+        sections = kept_sections(True) + sections
 
     header = (
         "# Bundled policies: model card\n\n"
