@@ -196,6 +196,11 @@ def following_accel(
     return behind_leader(free_road(speed, desired_speed, law), gap, nan_as(leader_speed, 0.0), law)
 
 
+CAR_ROOM = 7.0
+"""m: the length of road a car let in takes up in front of the one letting it in (a 5 m car, 2 m
+standing gap)."""
+
+
 @dataclass(frozen=True)
 class LaneDriving:
     """How the traffic driver executes what its policy chooses (the paper's heading model,
@@ -229,6 +234,8 @@ class LaneDriving:
     arrival_decel: float = 0.3  # m/s^2: the lateral speed falls so as to arrive at the target gently
     response_time: float = 0.4  # s: how fast the lateral speed follows that profile
     max_slip: float = 0.25  # lateral speed at most this fraction of the forward speed
+    crawl_lateral_speed: float = 0.3  # m/s: but this much at walking pace or standing (SUMO's own
+    # cars move sideways standing; without it a car let in from a queue in an ending lane never came)
     arrived: float = 0.35  # lane widths past the new lane's centre line: the change is over
     accel_span: float = 1.5  # m/s^2
     safe_decel: float = 3.0  # m/s^2: a change may ask no harder braking of the car or its new follower
@@ -249,7 +256,9 @@ class LaneDriving:
     diagonal_headway: float = 0.3  # s: kept behind the fast-side lane's leader not to be passed
     pass_margin: float = 2.0  # m/s: a leader this much slower than the car wants is a reason to pass
     keeper_pass_margin: float = 4.0  # m/s: the same for a lane keeper, who passes only a much slower car
-    let_in_gap: float = 10.0  # m: a car this close ahead in a neighbour lane that ends is let in
+    patience: float = 1.0  # s: held up this long before passing (a leader seen for a moment, half out
+    # of the lane as it changes away, is no reason)
+    keeper_patience: float = 5.0  # s: the same for a lane keeper, who follows a while first
     let_in_headway: float = 0.5  # s: kept behind a car being let in, until it has moved over
     # m/s: above this the fast-side leader is not passed on its slow side
     no_undertaking_above: float = 60 / 3.6
@@ -273,6 +282,7 @@ class LaneTraffic:
     follower both the gap check and keeping right)."""
 
     speed: np.ndarray  # [N] m/s
+    desired_speed: np.ndarray  # [N] m/s
     gap: np.ndarray  # [N, 6] bumper to bumper: +inf nobody, 0 alongside or no lane
     other_speed: np.ndarray  # [N, 6] m/s, NaN where nobody is
     known_speed: np.ndarray  # [N, 6] other_speed with NaN as 0 (a missing lane is a standing wall)
@@ -289,7 +299,7 @@ def lane_traffic(
     free = free_road(speed, desired_speed, law)
     lead = np.stack([behind_leader(free, gap[:, c], known[:, c], law) for c in (0, 2, 4)], axis=1)
     follower = np.stack([new_follower_accel(speed, gap[:, c], known[:, c], law) for c in (3, 5)], axis=1)
-    return LaneTraffic(speed, gap, other_speed, known, free, lead, follower)
+    return LaneTraffic(speed, desired_speed, gap, other_speed, known, free, lead, follower)
 
 
 def ends_soon(speed: np.ndarray, lateral: LaneDriving) -> np.ndarray:
@@ -361,7 +371,10 @@ def lane_intent(
 
     A change is over once the car's centre is `arrived` lane widths on the far side of its new
     lane's centre line, which is where SUMO puts it right after it crossed the line (its offset
-    jumps from +w/2 to -w/2): no lane index is needed, so this holds across edges too.
+    jumps from +w/2 to -w/2): no lane index is needed, so this holds across edges too. A car that
+    still wishes the same way then goes on to the next lane in one move: the test stays true until
+    it leaves the line behind, and restarting the change at every other step swung its target
+    between the two lanes.
     """
     wish = np.where(steer > lateral.change_threshold, 1, np.where(steer < -lateral.change_threshold, -1, 0))
     if slow_side_free is not None:  # a wish for a lane that is not there is no wish
@@ -381,16 +394,21 @@ def lane_intent(
     room = np.where(wish > 0, (lanes_fast > 0) & acceptable[:, 0], (lanes_slow > 0) & acceptable[:, 1])
     if may_begin is not None:
         room &= may_begin
-    return np.where((changing == 0) & (wish != 0) & room, wish, going)
+    begins = (changing == 0) | ((going == 0) & (wish == changing))
+    return np.where(begins & (wish != 0) & room, wish, going)
 
 
-def lane_clear(
-    speed: np.ndarray, lead_gap: np.ndarray, lead_speed: np.ndarray, lateral: LaneDriving
-) -> np.ndarray:
-    """[N] bool: a neighbour lane's leader is beyond `look_ahead` and would not be caught up with
-    within `keep_right_catch_up_s` (a driver does not change lanes only to be held up again)."""
-    closing = np.maximum(speed - nan_as(lead_speed, np.inf), 0.0)
-    return lead_gap > np.maximum(look_ahead(speed, lateral), closing * lateral.keep_right_catch_up_s)
+def lane_clear(traffic: LaneTraffic, column: int, lateral: LaneDriving) -> np.ndarray:
+    """[N] bool: the leader in a neighbour lane (`column` of the traffic's slots) would not come
+    within `look_ahead` for `keep_right_catch_up_s`, at the speed the car wants (a driver does not
+    change lanes only to be held up again). Judged at the car's own speed, a car slowed down behind
+    a leader found the lane beside free as soon as that leader dropped back past the look-ahead,
+    and moved back and forth across the line (on the A10KW, a third of overtakers' changes came
+    within 4 s of the one before, the other way)."""
+    t = traffic
+    wanted = np.maximum(t.speed, t.desired_speed)
+    closing = np.maximum(wanted - nan_as(t.other_speed[:, column], np.inf), 0.0)
+    return t.gap[:, column] > look_ahead(t.speed, lateral) + closing * lateral.keep_right_catch_up_s
 
 
 def slow_side_free(
@@ -403,7 +421,7 @@ def slow_side_free(
     Gap 0 in `traffic`: no lane, or alongside; `lane_leads_on` [N, 3] metres (own, fast side, slow
     side), None: every lane leads on."""
     t = traffic
-    clear = lane_clear(t.speed, t.gap[:, 4], t.other_speed[:, 4], lateral)
+    clear = lane_clear(t, 4, lateral)
     free = clear & (t.gap[:, 5] > 0) & (t.follower_accel[:, 1] >= -lateral.polite_decel)
     if lane_leads_on is not None:
         slow = lane_leads_on[:, 2]
@@ -413,22 +431,26 @@ def slow_side_free(
 
 def held_up(
     traffic: LaneTraffic,
-    desired_speed: np.ndarray,
     lateral: LaneDriving,
     pass_margin: np.ndarray | float | None = None,
+    once_slowed: np.ndarray | None = None,
 ) -> np.ndarray:
     """[N] bool: a leader within `look_ahead` drives slower than the car wants by more than
     `pass_margin` (m/s, per agent; None: `lateral.pass_margin`), and the fast-side lane is better:
     clear (`lane_clear`), or its leader faster than the own one by as much. The reason to move to
-    the fast side."""
+    the fast side. Cars `once_slowed` [N] bool (None: none) count as held up only once that leader
+    has slowed them down by the margin: they wait and see, as a lane keeper behind a car coming on
+    from a ramp does while it speeds up."""
     t = traffic
     margin = lateral.pass_margin if pass_margin is None else pass_margin
     near = np.isfinite(t.gap[:, 0]) & (t.gap[:, 0] < look_ahead(t.speed, lateral))
     lead_speed = nan_as(t.other_speed[:, 0], np.inf)
     fast_speed = nan_as(t.other_speed[:, 2], np.inf)
-    clear = lane_clear(t.speed, t.gap[:, 2], t.other_speed[:, 2], lateral)
-    better = clear | (fast_speed > lead_speed + margin)
-    return near & (lead_speed < desired_speed - margin) & better
+    better = lane_clear(t, 2, lateral) | (fast_speed > lead_speed + margin)
+    held = near & (lead_speed < t.desired_speed - margin) & better
+    if once_slowed is not None:
+        held &= ~once_slowed | (t.speed < t.desired_speed - margin)
+    return held
 
 
 def not_undertaking(
@@ -454,27 +476,38 @@ def not_undertaking(
 
 
 def letting_in(traffic: LaneTraffic, lane_leads_on: np.ndarray, lateral: LaneDriving) -> np.ndarray:
-    """[N] the acceleration that lets a car merge in front, zip fashion: a car between the standing
-    gap it would take and `let_in_gap` ahead in a neighbour lane that ends within max(`ending_lane_m`,
-    `ending_lane_s` at speed), and sooner than the own lane, is followed as a leader, braking no
-    harder than `safe_decel` (+inf where there is none). A car nearer, or alongside, is passed, so a
-    through lane and an ending lane take turns; without this a lane drop in dense traffic filled the
-    ending lane with cars waiting for a gap nobody opened. `lane_leads_on` [N, 3] metres (own, fast
-    side, slow side)."""
+    """[N] the acceleration that lets a car merge in front, zip fashion (+inf where there is none):
+    the nearest car ahead in a neighbour lane that ends within max(`ending_lane_m`, `ending_lane_s`
+    at speed), and sooner than the own lane, is followed as a leader where it is within
+    `look_ahead`, would fit in front of the own leader, and is not being closed on so fast that
+    keeping clear of it takes more than `safe_decel`. The gap opens at the full headway (SUMO's
+    drivers, who take the cars whose lane ends, move over only into a gap safe at their own 1 s),
+    braking no harder than the law's comfortable deceleration unless keeping clear takes more. A car
+    nearer than the standing gap, or alongside, is passed, as is one that would take harder
+    braking: the next car back lets it in, so a through lane and an ending lane take turns. Letting
+    in only a car within a few metres came too late at speed: nobody could brake for it, the merging
+    car reached the end of its lane and stood there, and the lane beside it queued behind the cars
+    that stopped for it at last. `lane_leads_on` [N, 3] metres (own, fast side, slow side)."""
     t = traffic
     soon = ends_soon(t.speed, lateral)
-    courtesy = replace(
-        lateral.following, time_headway=lateral.let_in_headway, min_gap=lateral.following.min_gap + 1.0
-    )
+    law = lateral.following
+    courtesy = replace(law, min_gap=law.min_gap + 1.0)
+    reach = look_ahead(t.speed, lateral)
+    own_room = t.gap[:, 0] - CAR_ROOM
     out = np.full(len(t.speed), np.inf)
     for column, lane in ((2, 1), (4, 2)):
-        there = np.isfinite(t.other_speed[:, column]) & (t.gap[:, column] < lateral.let_in_gap)
-        there &= t.gap[:, column] > lateral.following.min_gap  # one nearer (or alongside) is passed
-        ending = (lane_leads_on[:, lane] < soon) & (lane_leads_on[:, lane] < lane_leads_on[:, 0])
-        behind = yielding(
-            t.free, t.gap[:, column], t.known_speed[:, column], there & ending, courtesy, lateral
-        )
-        out = np.minimum(out, behind)
+        gap, ahead_speed = t.gap[:, column], t.known_speed[:, column]
+        there = np.isfinite(t.other_speed[:, column]) & (gap < reach) & (gap < own_room)
+        there &= gap > law.min_gap  # one nearer (or alongside) is passed
+        there &= (lane_leads_on[:, lane] < soon) & (lane_leads_on[:, lane] < lane_leads_on[:, 0])
+        if not there.any():
+            continue
+        closing = np.maximum(t.speed - ahead_speed, 0.0)
+        needed = closing**2 / (2.0 * np.maximum(gap - law.min_gap, 0.1))  # to keep clear of it
+        there &= needed <= lateral.safe_decel
+        behind = behind_leader(t.free, np.where(there, gap, np.inf), ahead_speed, courtesy)
+        gentle = np.maximum(behind, -np.maximum(law.comfortable_decel, needed))
+        out = np.minimum(out, np.where(there, gentle, np.inf))
     return out
 
 
@@ -520,9 +553,12 @@ def lateral_profile(
 ) -> tuple[np.ndarray, np.ndarray]:
     """New lateral speed and acceleration [N] towards a target `error` metres away (+ = fast side):
     the speed from which the target is reached decelerating at `arrival_decel`, capped at
-    `max_lateral_speed` and at `max_slip` of the forward speed (a standing car does not slide),
-    followed with acceleration and jerk limits."""
-    reach = np.minimum(lateral.max_lateral_speed, lateral.max_slip * speed)
+    `max_lateral_speed` and at `max_slip` of the forward speed or `crawl_lateral_speed`, whichever is
+    more (a car at walking pace edges over; at speed the slip bounds it), followed with acceleration
+    and jerk limits."""
+    reach = np.minimum(
+        lateral.max_lateral_speed, np.maximum(lateral.max_slip * speed, lateral.crawl_lateral_speed)
+    )
     profile = np.sign(error) * np.minimum(reach, np.sqrt(2.0 * lateral.arrival_decel * np.abs(error)))
     wanted = np.clip(
         (profile - lateral_speed) / lateral.response_time,
@@ -542,6 +578,7 @@ class LaneHabits:
     keeps_right: np.ndarray  # [N] bool: moves to a free slow-side lane unasked
     passes: np.ndarray  # [N] bool: held up, moves to the fast side unasked
     pass_margin: np.ndarray  # [N] m/s: a leader this much slower than the car wants is a reason to pass
+    patience: np.ndarray  # [N] s: held up this long before it passes
 
 
 @dataclass(frozen=True)
@@ -551,6 +588,7 @@ class LaneCommand:
     actuation: Actuation
     changing: np.ndarray  # [N] int, see `lane_intent`
     lateral_accel: np.ndarray  # [N] m/s^2, + = fast side
+    held_for: np.ndarray  # [N] s the car has been held up (`held_up`) without a break
 
 
 def actuate_lanes(
@@ -578,6 +616,7 @@ def actuate_lanes(
     on_normal_edge: np.ndarray | None = None,
     habits: LaneHabits | None = None,
     far_fast_leader: tuple[np.ndarray, np.ndarray] | None = None,
+    held_for: np.ndarray | None = None,
 ) -> LaneCommand:
     """One control step of the traffic driver for all agents.
 
@@ -591,7 +630,9 @@ def actuate_lanes(
     `lateral` says and go to the slow side when the policy asks) tell who keeps right and who
     passes a slower leader unasked; with them, only the rules move a car to the slow side;
     `far_fast_leader` ([N] gap, [N] speed; None: none) is the nearest leader in a lane beyond the
-    fast-side one, which is not passed on its slow side either. A car that wants more than the
+    fast-side one, which is not passed on its slow side either; `held_for` [N] (None: 0) the
+    seconds each car has been held up so far, which its habits' patience must reach before it
+    passes (the result carries it on). A car that wants more than the
     limit (`desired_speed` above `speed_limit`) drives at what it wants, as a share of real
     drivers and of SUMO's do.
     """
@@ -613,9 +654,15 @@ def actuate_lanes(
     free = slow_side_free(traffic, lateral, lane_leads_on) if lateral.keep_right else None
     if free is not None and habits is not None:
         free &= habits.keeps_right
-    margin = None if habits is None else habits.pass_margin
-    held = held_up(traffic, desired_speed, lateral, margin) if lateral.keep_right else None
+    margin, patient = (None, None) if habits is None else (habits.pass_margin, ~habits.passes)
+    held = held_up(traffic, lateral, margin, patient) if lateral.keep_right else None
+    waited = np.zeros(len(steer))
+    if held is not None:
+        waited = np.where(held, (0.0 if held_for is None else held_for) + dt, 0.0)
     if habits is not None and held is not None:  # the slow side is the rules' alone
+        if free is not None:  # waiting to pass is no time to move right
+            free &= ~(held & habits.passes)
+        held = held & (waited >= habits.patience - 1e-9)
         steer = np.where(habits.passes & held, 1.0, np.maximum(steer, 0.0))
     heading = lane_intent(
         steer,
@@ -640,7 +687,10 @@ def actuate_lanes(
         bound = np.where(heading != 0, into, np.inf)
         bound = np.minimum(bound, not_undertaking(traffic, lateral, far_fast_leader))
         if lane_leads_on is not None:
-            bound = np.minimum(bound, letting_in(traffic, lane_leads_on, lateral))
+            # a car on its way to another lane leaves letting in to the next one back
+            bound = np.minimum(
+                bound, np.where(heading == 0, letting_in(traffic, lane_leads_on, lateral), np.inf)
+            )
         if leave is not None:
             waiting = np.where(heading == 0, leave, 0)
             bound = np.minimum(bound, falling_in(traffic, waiting, lateral))
@@ -669,4 +719,4 @@ def actuate_lanes(
     move, off_track = clamp_to_road(offset, move, half_width, car)
     angle = np.arctan2(new_lateral, np.maximum(new_speed, 0.1))
     result = Actuation(new_speed, angle, new_speed, move, off_track, side_cut, speed_cut, new_lateral)
-    return LaneCommand(result, heading, new_accel)
+    return LaneCommand(result, heading, new_accel, waited)

@@ -129,6 +129,7 @@ class TrafficRows:
     lateral_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
     lateral_accel: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
     changing: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # see actuation.lane_intent
+    held_for: np.ndarray = field(default_factory=lambda: np.zeros(0))  # s held up without a break
     lane_number: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # -1 = not sensed yet
     lane_count: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     lane_changed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # at the last sensing
@@ -190,6 +191,7 @@ class TrafficDriver:
             lateral_speed=zeros,
             lateral_accel=zeros,
             changing=np.zeros(count, np.int64),
+            held_for=zeros,
             lane_number=np.full(count, -1, np.int64),
             lane_count=np.zeros(count, np.int64),
             lane_changed=np.zeros(count, bool),
@@ -317,12 +319,15 @@ class TrafficDriver:
     def habits(self, lanes: LaneAgents) -> LaneHabits:
         """How the two behaviours use the lanes. Overtakers pass any leader slower than they want
         and go back right after a pass, wherever they are. Keepers keep the lane they are in, as
-        lane keepers do: they pass only a much slower leader, and move right unasked only out of the
+        lane keepers do: they pass only a much slower leader that has held them up a while, and move
+        right unasked only out of the
         fast-most lane, which the law leaves for passing."""
         overtaker = lanes.behaviour_id > 0.5
         fast_most = lanes.lane_number == lanes.lanes - 1
-        margin = np.where(overtaker, self.lateral.pass_margin, self.lateral.keeper_pass_margin)
-        return LaneHabits(keeps_right=overtaker | fast_most, passes=overtaker, pass_margin=margin)
+        ruled = self.lateral
+        margin = np.where(overtaker, ruled.pass_margin, ruled.keeper_pass_margin)
+        patience = np.where(overtaker, ruled.patience, ruled.keeper_patience)
+        return LaneHabits(overtaker | fast_most, overtaker, margin, patience)
 
     def actuate(self, fleet: Fleet, actions: np.ndarray) -> Actuation:
         r, f, own = fleet.rows, fleet.rows.frame, fleet.rows.own
@@ -333,7 +338,7 @@ class TrafficDriver:
             own.lateral_speed, own.lateral_accel, own.changing, lanes.lane_offset, lanes.lane_width,
             lanes.lanes - 1 - lanes.lane_number, lanes.lane_number, f.offset, f.half_width, f.speed_limit,
             fleet.dt, fleet.car, self.lateral, r.side_limit, r.speed_cap, lanes.lane_leads_on,
-            f.on_normal_edge, self.habits(lanes), (around.far_fast_gap, around.far_fast_speed),
+            f.on_normal_edge, self.habits(lanes), (around.far_fast_gap, around.far_fast_speed), own.held_for,
         )  # fmt: skip
         # a junction's internal edge holds only the lanes of some connections, not the
         # carriageway: the move stays clamped to it, but leaving it is not off the road
@@ -342,6 +347,7 @@ class TrafficDriver:
         mine = ~r.handed  # SUMO drives the others: no lane change of ours goes on
         own.changing = np.where(mine, command.changing, 0)
         own.lateral_accel = np.where(mine, command.lateral_accel, 0.0)
+        own.held_for = np.where(mine, command.held_for, 0.0)
         own.lateral_speed = np.where(mine, result.lateral_speed, 0.0)
         return result
 

@@ -75,9 +75,9 @@ def sha256(path: Path) -> str:
 
 
 RECORDED = {
-    "highway_traffic": "7f9ad1c75232b3907f67708156426c797be89551bf5cc7e3099a13aae9a938f6",
+    "highway_traffic": "8ccf5983455ff7541c224bf9aee99ca8a00d64e1a955cb1b8afbd09df52de156",
     "highway_paper": "357ab8c99315bc4115ad846f45422bc7474499c6b7343aee7b6a177dba96291a",
-    "share_lanedrop": "1421e7578b2b26f53bbcc1643da52931b893d7e526bd2eeea20aeba9a528884f",
+    "share_lanedrop": "65933c3703f37e5eceda8ebabacea47d1eb3d0e8a104cca8647150abb43bba49",
 }
 """sha256 of each case's FCD (csv), recorded on the code before the driver became one object (the
 traffic case again when lane changes began to wait for an acceptable gap, and both traffic-driver
@@ -85,7 +85,10 @@ cases when the driver began to keep the rules of the road, and again when agents
 nearer the limit, began no lane change inside a junction and let cars in from an ending lane;
 both highway cases when populate stopped putting cars down fast just behind a slower one; all three
 when the two behaviours got their own lane habits and populate stopped putting keepers down in the
-fast-most lane: a change of behaviour on purpose is a new recording, in the same commit)."""
+fast-most lane; both traffic-driver cases when passing began to wait out a patience, keeping right
+to judge the slow lane at the speed wanted, a change to go on into the next lane in one move, and
+through cars to let in a car from an ending lane from further back: a change of behaviour on purpose
+is a new recording, in the same commit)."""
 
 
 def run_case(case: str, tmp_path: Path) -> Path:

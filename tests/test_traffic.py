@@ -22,6 +22,8 @@ from behaviors.actuation import (
     lane_intent,
     lane_traffic,
     letting_in,
+    look_ahead,
+    slow_side_free,
 )
 from behaviors.control import Fleet
 from behaviors.drivers import TrafficDriver, make_driver
@@ -275,7 +277,10 @@ def drive_lanes(
     jumps by a lane width); returns per step the lane, the offset in it, lateral speed and accel.
     `behaviour` ("keeper"/"overtaker"; None: no habits) drives with TrafficDriver's habits for it."""
     car = CarModel()
-    state = dict(speed=np.array([speed]), lat=np.array([0.0]), acc=np.array([0.0]), changing=np.array([0]))
+    state = dict(
+        speed=np.array([speed]), lat=np.array([0.0]), acc=np.array([0.0]), changing=np.array([0]),
+        held=np.array([0.0]),
+    )  # fmt: skip
     offset, rows = np.array([lane_offset]), []
     for steer in steers:
         carriageway = (lane - (lanes - 1) / 2) * width + offset
@@ -288,14 +293,20 @@ def drive_lanes(
             np.array([[steer, 0.5, 0.0]]), state["speed"], np.array([speed]), *leaders, state["lat"],
             state["acc"], state["changing"], offset, np.array([width]), np.array([lanes - 1 - lane]),
             np.array([lane]), carriageway, np.array([lanes * width / 2]), np.array([33.3]), dt, car, lateral,
-            habits=habits, far_fast_leader=far_fast_leader,
+            habits=habits, far_fast_leader=far_fast_leader, held_for=state["held"],
         )  # fmt: skip
         a = out.actuation
         offset = offset + a.lateral_move
         if abs(offset[0]) > width / 2:  # SUMO moves the car to the next lane
             step = int(np.sign(offset[0]))
             lane, offset = lane + step, offset - step * width
-        state = dict(speed=a.speed, lat=a.lateral_speed, acc=out.lateral_accel, changing=out.changing)
+        state = dict(
+            speed=a.speed,
+            lat=a.lateral_speed,
+            acc=out.lateral_accel,
+            changing=out.changing,
+            held=out.held_for,
+        )
         rows.append((lane, offset[0], a.lateral_speed[0], out.lateral_accel[0], out.changing[0], a.speed[0]))
     return np.array(rows)
 
@@ -412,17 +423,55 @@ def test_a_change_is_given_up_for_a_car_that_comes_alongside():
     assert set(given_up[:, 4]) == {0}
 
 
+def test_a_slow_side_lane_is_free_only_where_its_leader_would_not_hold_the_car_up_again():
+    ruled = LaneDriving()
+    speed, desired = np.array([22.0]), np.array([27.0])  # slowed down behind a 23 m/s car
+
+    def free(gap: float) -> bool:
+        traffic = lane_traffic(speed, desired, *leaders_of(slow_lead=(4, gap, 23.0)), ruled.following)
+        return bool(slow_side_free(traffic, ruled)[0])
+
+    reach = float(look_ahead(speed, ruled)[0])
+    assert not free(reach + 10.0)  # beyond the look-ahead, but caught up with at the speed it wants
+    assert free(reach + ruled.keep_right_catch_up_s * (27.0 - 23.0) + 5.0)
+
+
+def test_a_change_goes_on_to_the_next_lane_in_one_move_while_the_wish_holds():
+    run = drive_lanes([1.0] * 60, lane=0)  # the policy's wish alone, from the rightmost of three lanes
+    first, arrived = np.flatnonzero(run[:, 4] == 1)[0], np.flatnonzero(run[:, 0] == 2)[0]
+    assert (run[first:arrived, 4] == 1).all()  # no step back to "no change" on the way
+    assert np.abs(np.diff(run[first:arrived, 3])).max() <= LaneDriving().max_lateral_jerk * 0.2 + 1e-9
+
+
+def test_a_standing_car_edges_sideways_into_a_gap():
+    ruled = LaneDriving()
+    out = actuate_lanes(
+        np.array([[0.0, 0.5, 0.0]]), np.zeros(1), np.array([30.0]), *NO_LEADERS, np.zeros(1), np.zeros(1),
+        np.array([1]), np.zeros(1), np.array([3.5]), np.array([1]), np.array([1]), np.zeros(1),
+        np.array([5.25]), np.array([33.3]), 0.2, CarModel(), ruled,
+    )  # fmt: skip
+    assert 0.0 < out.actuation.lateral_speed[0] <= ruled.crawl_lateral_speed
+
+
 def test_a_car_ahead_in_a_lane_that_ends_is_let_in_and_one_alongside_is_passed():
     ruled = LaneDriving()
     ends = np.array([[2000.0, 2000.0, 120.0]])  # the slow-side lane ends 120 m on, the own lane leads on
-    speed, desired = np.array([6.0]), np.array([30.0])
-    waiting = leaders_of(slow_lead=(4, 6.0, 0.0))  # 6 m ahead, standing at the end of its lane
-    brake = letting_in(lane_traffic(speed, desired, *waiting, ruled.following), ends, ruled)
-    assert -ruled.safe_decel <= brake[0] < -0.5  # it holds back to leave the gap
-    alongside = leaders_of(slow_lead=(4, 1.0, 0.0))  # too near to leave it a gap: passed
-    assert letting_in(lane_traffic(speed, desired, *alongside, ruled.following), ends, ruled)[0] == np.inf
-    through = np.array([[2000.0, 2000.0, 2000.0]])  # the slow-side lane leads on: nobody waits to merge
-    assert letting_in(lane_traffic(speed, desired, *waiting, ruled.following), through, ruled)[0] == np.inf
+    speed, desired = np.array([20.0]), np.array([30.0])
+
+    def let_in(leaders, lane_ends=ends) -> float:
+        return float(letting_in(lane_traffic(speed, desired, *leaders, ruled.following), lane_ends, ruled)[0])
+
+    merging = leaders_of(slow_lead=(4, 30.0, 15.0))  # 30 m ahead, slower, in the lane that ends
+    assert -ruled.following.comfortable_decel <= let_in(merging) < -0.5  # it drops back, gently
+    assert let_in(leaders_of(slow_lead=(4, 1.0, 20.0))) == np.inf  # alongside: too near to leave it a gap
+    assert let_in(leaders_of(slow_lead=(4, 20.0, 0.0))) == np.inf  # standing 20 m on: no braking in time
+    no_room = leaders_of(lead=(0, 33.0, 20.0), slow_lead=(4, 30.0, 20.0))  # it would not fit in front
+    assert let_in(no_room) == np.inf
+    assert let_in(merging, np.array([[2000.0, 2000.0, 2000.0]])) == np.inf  # the lane leads on: nobody merges
+    slow_to_stop = np.array([3.0])  # at walking pace in a queue, a standing car 6 m on is let in
+    standing = leaders_of(slow_lead=(4, 6.0, 0.0))
+    queued = letting_in(lane_traffic(slow_to_stop, desired, *standing, ruled.following), ends, ruled)
+    assert -ruled.safe_decel <= queued[0] < -0.5
 
 
 def test_a_car_whose_lane_ends_falls_in_behind_the_car_beside_it_and_moves_out_600_m_ahead():
@@ -961,11 +1010,15 @@ def test_the_policy_cannot_push_a_car_closer_than_the_minimum_headway():
 def test_overtakers_pass_a_slower_leader_unasked_and_keepers_only_a_much_slower_one_when_they_ask():
     ruled = LaneDriving()
     slower = leaders_of(lead=(0, 40.0, 27.0))  # 3 m/s slower than the 30 m/s wanted; the fast lane free
-    assert drive_lanes([0.0] * 3, lateral=ruled, leaders=slower, behaviour="overtaker")[-1, 4] == 1
+    waits = drive_lanes([0.0] * 8, lateral=ruled, leaders=slower, behaviour="overtaker")[:, 4]
+    assert not waits[:4].any() and waits[-1] == 1  # after its patience (1 s), and not to the right first
     assert set(drive_lanes([1.0] * 10, lateral=ruled, leaders=slower, behaviour="keeper")[:, 4]) == {0}
     truck = leaders_of(lead=(0, 40.0, 22.0))  # 8 m/s slower
     assert set(drive_lanes([0.0] * 10, lateral=ruled, leaders=truck, behaviour="keeper")[:, 4]) == {0}
-    assert drive_lanes([1.0] * 3, lateral=ruled, leaders=truck, behaviour="keeper")[-1, 4] == 1  # asked
+    asked = drive_lanes([1.0] * 50, lateral=ruled, leaders=truck, behaviour="keeper")
+    slowed = np.flatnonzero(asked[:, 5] < 30.0 - ruled.keeper_pass_margin)[0]
+    waited = slowed + round(ruled.keeper_patience / 0.2) - 1
+    assert not asked[:waited, 4].any() and asked[:, 4].max() == 1  # asked: once slowed down, and after 5 s
     gap, other = leaders_of(lead=(0, 40.0, 27.0), fast_lead=(2, 90.0, 27.0))  # the fast lane no better
     no_better = drive_lanes([0.0] * 10, lateral=ruled, leaders=(gap, other), behaviour="overtaker")
     assert no_better[:, 4].max() <= 0  # no move to the fast side (it keeps right into the free lane)
