@@ -240,6 +240,8 @@ class LaneDriving:
     accel_span: float = 1.5  # m/s^2
     safe_decel: float = 3.0  # m/s^2: a change may ask no harder braking of the car or its new follower
     change_time: float = 5.0  # s: a faster new follower must not come alongside within this
+    lag_headway: float = 1.0  # s: nor be nearer behind than this at its speed (SUMO's drivers brake
+    # hard inside their 1 s; cut-ins nearer doubled their hard braking among agents)
     following: CarFollowing = CarFollowing()
     keep_right: bool = True  # the traffic rules below; False: the policy's lane choice alone
     free_ahead: float = 60.0  # m: the slow-side lane is free for keeping right beyond max(this, 3 s at speed)
@@ -322,23 +324,27 @@ def gap_acceptable(
     follower would make the car or its follower brake harder than `safe_decel` (the safety
     criterion of MOBIL, Kesting, Treiber and Helbing 2007), nor would a faster new follower come
     alongside within `change_time` (a follower that sees the car only once it is over the line,
-    as an agent does, may not brake in time). Gap 0 in `traffic`: alongside, or no lane. Where
-    `merging` [N, 2] (a car whose lane ends, towards the side it leaves to), the car's own braking is
-    judged behind the new leader at `let_in_headway`, the gap it falls in to: by the full headway no
+    as an agent does, may not brake in time), nor be nearer behind than `lag_headway` at its speed.
+    Gap 0 in `traffic`: alongside, or no lane. Where `merging` [N, 2] (a car whose lane ends,
+    towards the side it leaves to), the car's own braking and the follower's lag are judged at
+    `let_in_headway`, the gap it falls in to: by the full headway no
     gap behind a car beside it at its own speed is ever room (the car stood at the end of a dropped
     lane)."""
     t, law = traffic, lateral.following
     out = np.zeros((len(t.speed), 2), bool)
     courtesy = replace(law, time_headway=lateral.let_in_headway)
+    leaving = np.zeros((len(t.speed), 2), bool) if merging is None else merging
     for side, (lead, follow) in enumerate(((2, 3), (4, 5))):
         own, theirs = t.lead_accel[:, side + 1], t.follower_accel[:, side]
-        if merging is not None and merging[:, side].any():
+        if leaving[:, side].any():
             behind = behind_leader(t.free, t.gap[:, lead], t.known_speed[:, lead], courtesy)
-            own = np.where(merging[:, side], behind, own)
+            own = np.where(leaving[:, side], behind, own)
         out[:, side] = (t.gap[:, lead] > 0) & (t.gap[:, follow] > 0) & (own >= -lateral.safe_decel)
         out[:, side] &= theirs >= -lateral.safe_decel
         closing = np.maximum(t.known_speed[:, follow] - t.speed, 0.0)
-        out[:, side] &= t.gap[:, follow] > law.min_gap + closing * lateral.change_time
+        lag = np.where(leaving[:, side], lateral.let_in_headway, lateral.lag_headway)
+        room = np.maximum(closing * lateral.change_time, lag * t.known_speed[:, follow])
+        out[:, side] &= t.gap[:, follow] > law.min_gap + room
     return out
 
 

@@ -75,9 +75,9 @@ def sha256(path: Path) -> str:
 
 
 RECORDED = {
-    "highway_traffic": "8ccf5983455ff7541c224bf9aee99ca8a00d64e1a955cb1b8afbd09df52de156",
+    "highway_traffic": "c423230a7403511c573fcecc46476c71a9b1aee6a0c7cc3b56c1f7a0edcdf5ee",
     "highway_paper": "357ab8c99315bc4115ad846f45422bc7474499c6b7343aee7b6a177dba96291a",
-    "share_lanedrop": "65933c3703f37e5eceda8ebabacea47d1eb3d0e8a104cca8647150abb43bba49",
+    "share_lanedrop": "382e223aacaefe1b37ddb66a25fca8b3f262e2c8f162c2ff418d86471ab2bb26",
 }
 """sha256 of each case's FCD (csv), recorded on the code before the driver became one object (the
 traffic case again when lane changes began to wait for an acceptable gap, and both traffic-driver
@@ -87,7 +87,8 @@ both highway cases when populate stopped putting cars down fast just behind a sl
 when the two behaviours got their own lane habits and populate stopped putting keepers down in the
 fast-most lane; both traffic-driver cases when passing began to wait out a patience, keeping right
 to judge the slow lane at the speed wanted, a change to go on into the next lane in one move, and
-through cars to let in a car from an ending lane from further back: a change of behaviour on purpose
+through cars to let in a car from an ending lane from further back, and again when a change began
+to want a 1 s lag behind and SUMO's cars to see agents' braking as their own: a change of behaviour on purpose
 is a new recording, in the same commit)."""
 
 

@@ -24,6 +24,7 @@ from sumo_scenarios import (
     scenario_info,
     training_roads,
 )
+from sumo_scenarios.build import shared_vtypes
 from sumo_scenarios.net import lane_widths
 
 EXPECTED = {"ring": (3, 3.5), "highway": (3, 3.5), "tiny": (2, 3.2)}
@@ -161,6 +162,11 @@ def test_build_reproduces_the_shipped_networks(tmp_path) -> None:
     for scenario, shipped in zip(built, [*map(get_scenario, SCENARIO_NAMES), *roads], strict=True):
         assert scenario.net.parent == tmp_path / scenario.name
         assert scenario_info(scenario) == scenario_info(shipped)
+
+
+def test_the_shipped_vtypes_are_the_ones_the_build_writes(tmp_path) -> None:
+    shipped = get_scenario("highway").vtypes
+    assert shared_vtypes(tmp_path / "road").read_bytes() == shipped.read_bytes()
 
 
 def test_the_ramp_roads_have_cars_joining_and_leaving_and_only_the_wider_family_has_them() -> None:

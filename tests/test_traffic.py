@@ -443,6 +443,16 @@ def test_a_change_goes_on_to_the_next_lane_in_one_move_while_the_wish_holds():
     assert np.abs(np.diff(run[first:arrived, 3])).max() <= LaneDriving().max_lateral_jerk * 0.2 + 1e-9
 
 
+def test_a_change_leaves_the_new_follower_a_second_and_a_merging_car_half_that():
+    ruled = LaneDriving()
+    speed, desired = np.full(3, 25.0), np.full(3, 25.0)
+    gap, other = np.full((3, 6), np.inf), np.full((3, 6), np.nan)
+    gap[:, 3], other[:, 3] = [22.0, 32.0, 22.0], 25.0  # the fast lane's follower, as fast: 0.9 s, 1.3 s
+    merging = np.array([[False, False], [False, False], [True, False]])
+    ok = gap_acceptable(lane_traffic(speed, desired, gap, other, ruled.following), ruled, merging)[:, 0]
+    assert ok.tolist() == [False, True, True]
+
+
 def test_a_standing_car_edges_sideways_into_a_gap():
     ruled = LaneDriving()
     out = actuate_lanes(
