@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from behaviors.actuation import nan_as
 from behaviors.geometry import RoadGeometry
 from behaviors.sensors import Neighbours, nearest_per_slot, neighbours, within
 
@@ -263,7 +264,7 @@ def observe_lanes(agents: LaneAgents, around: Surroundings) -> np.ndarray:
     put("curvature", np.clip(agents.curvature * agents.fast_side_sign * 100.0, -1.0, 1.0))
     put("lane_leads_on", np.clip(agents.lane_leads_on / LANE_END_RANGE, 0.0, 1.0))
     put("gap", np.minimum(around.gap / GAP_RANGE, 1.0))
-    relative = np.nan_to_num(around.other_speed - agents.speed[:, None], nan=0.0)
+    relative = nan_as(around.other_speed - agents.speed[:, None], 0.0)  # speeds are finite
     put("relative_speed", np.clip(relative / RELATIVE_SPEED_SCALE, -1.0, 1.0))
     put("behaviour", agents.behaviour_id)
     return obs
