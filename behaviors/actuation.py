@@ -443,18 +443,17 @@ def not_undertaking(
     `no_undertaking_above` (+inf where there is none, or they are slower: passing on the slow side is
     allowed in a queue). The car may close up beside them, so the gap kept is short."""
     t = traffic
-    leaders = [(t.gap[:, 2], t.known_speed[:, 2])]
+    gaps, speeds = [t.gap[:, 2]], [t.known_speed[:, 2]]
     if far_fast_leader is not None:
-        leaders.append((far_fast_leader[0], nan_as(far_fast_leader[1], 0.0)))
+        gaps.append(far_fast_leader[0])
+        speeds.append(nan_as(far_fast_leader[1], 0.0))
+    gap, speed_ahead = np.stack(gaps), np.stack(speeds)  # [k, N]: one law call for both leaders
+    applies = np.isfinite(gap) & (gap > 0) & (speed_ahead > lateral.no_undertaking_above)
+    if not applies.any():
+        return np.full(len(t.speed), np.inf)
     diagonal = replace(lateral.following, time_headway=lateral.diagonal_headway, min_gap=0.0)
-    out = np.full(len(t.speed), np.inf)
-    for gap, speed_ahead in leaders:
-        applies = np.isfinite(gap) & (gap > 0) & (speed_ahead > lateral.no_undertaking_above)
-        if not applies.any():
-            continue
-        behind = behind_leader(t.free, np.where(applies, gap, np.inf), speed_ahead, diagonal)
-        out = np.minimum(out, np.where(applies, behind, np.inf))
-    return out
+    behind = behind_leader(t.free, np.where(applies, gap, np.inf), speed_ahead, diagonal)
+    return np.where(applies, behind, np.inf).min(axis=0)
 
 
 def letting_in(traffic: LaneTraffic, lane_leads_on: np.ndarray, lateral: LaneDriving) -> np.ndarray:
