@@ -156,6 +156,11 @@ class RoadGeometry:
         return names
 
     @functools.cached_property
+    def lane_name_array(self) -> np.ndarray:
+        """`lane_names` as an object array: a fleet's lane names are one gather, not a Python loop."""
+        return np.array(self.lane_names, object)
+
+    @functools.cached_property
     def lane_segments(self) -> np.ndarray:
         """[L] straight segments of each lane's shape (1 for a straight lane)."""
         first, last = self._lane_vertices
