@@ -161,7 +161,8 @@ def free_road(speed: np.ndarray, desired_speed: np.ndarray, law: CarFollowing) -
 def behind_leader(free: FreeRoad, gap: np.ndarray, leader_speed: np.ndarray, law: CarFollowing) -> np.ndarray:
     """[N] acceleration by the improved IDM of cars whose free-road terms are `free`; `gap` is bumper
     to bumper (+inf with no leader, then `leader_speed` is ignored), `leader_speed` has no NaN. `law`
-    may differ from `free.law` in its headway and standing gap only."""
+    may differ from `free.law` in its headway and standing gap only. `gap`/`leader_speed` may also be
+    [k, N], k leaders per car: then so is the result."""
     a, b = law.accel, law.comfortable_decel
     if (a, b, law.exponent) != (free.law.accel, free.law.comfortable_decel, free.law.exponent):
         raise ValueError("behind_leader: the law's free-road terms differ from those worked out")
@@ -271,7 +272,7 @@ def new_follower_accel(
 ) -> np.ndarray:
     """[N] the acceleration the car behind in a neighbour lane would need were the car to move in
     front of it (0 where nobody is behind), by the same car-following law at its own speed;
-    `follower_speed` has no NaN."""
+    `follower_speed` has no NaN. `follower_gap`/`follower_speed` may be [k, N] (k followers per car)."""
     braking = behind_leader(free_road(follower_speed, follower_speed, law), follower_gap, speed, law)
     return np.where(np.isfinite(follower_gap), braking, 0.0)
 
@@ -296,11 +297,14 @@ class LaneTraffic:
 def lane_traffic(
     speed: np.ndarray, desired_speed: np.ndarray, gap: np.ndarray, other_speed: np.ndarray, law: CarFollowing
 ) -> LaneTraffic:
-    """The cars' LaneTraffic; `gap`/`other_speed` [N, 6] in lanes.NEIGHBOUR_SLOTS order."""
+    """The cars' LaneTraffic; `gap`/`other_speed` [N, 6] in lanes.NEIGHBOUR_SLOTS order. The three
+    leaders, and the two followers, are one law call each on [k, N] rows (the per-car terms
+    broadcast along them): the same arithmetic per car as a call per column, in a third of the calls."""
     known = nan_as(other_speed, 0.0)
     free = free_road(speed, desired_speed, law)
-    lead = np.stack([behind_leader(free, gap[:, c], known[:, c], law) for c in (0, 2, 4)], axis=1)
-    follower = np.stack([new_follower_accel(speed, gap[:, c], known[:, c], law) for c in (3, 5)], axis=1)
+    gap_rows, known_rows = gap.T, known.T
+    lead = behind_leader(free, gap_rows[[0, 2, 4]], known_rows[[0, 2, 4]], law).T
+    follower = new_follower_accel(speed, gap_rows[[3, 5]], known_rows[[3, 5]], law).T
     return LaneTraffic(speed, desired_speed, gap, other_speed, known, free, lead, follower)
 
 
@@ -467,18 +471,17 @@ def not_undertaking(
     `no_undertaking_above` (+inf where there is none, or they are slower: passing on the slow side is
     allowed in a queue). The car may close up beside them, so the gap kept is short."""
     t = traffic
-    leaders = [(t.gap[:, 2], t.known_speed[:, 2])]
+    gaps, speeds = [t.gap[:, 2]], [t.known_speed[:, 2]]
     if far_fast_leader is not None:
-        leaders.append((far_fast_leader[0], nan_as(far_fast_leader[1], 0.0)))
+        gaps.append(far_fast_leader[0])
+        speeds.append(nan_as(far_fast_leader[1], 0.0))
+    gap, speed_ahead = np.stack(gaps), np.stack(speeds)  # [k, N]: one law call for both leaders
+    applies = np.isfinite(gap) & (gap > 0) & (speed_ahead > lateral.no_undertaking_above)
+    if not applies.any():
+        return np.full(len(t.speed), np.inf)
     diagonal = replace(lateral.following, time_headway=lateral.diagonal_headway, min_gap=0.0)
-    out = np.full(len(t.speed), np.inf)
-    for gap, speed_ahead in leaders:
-        applies = np.isfinite(gap) & (gap > 0) & (speed_ahead > lateral.no_undertaking_above)
-        if not applies.any():
-            continue
-        behind = behind_leader(t.free, np.where(applies, gap, np.inf), speed_ahead, diagonal)
-        out = np.minimum(out, np.where(applies, behind, np.inf))
-    return out
+    behind = behind_leader(t.free, np.where(applies, gap, np.inf), speed_ahead, diagonal)
+    return np.where(applies, behind, np.inf).min(axis=0)
 
 
 def letting_in(traffic: LaneTraffic, lane_leads_on: np.ndarray, lateral: LaneDriving) -> np.ndarray:

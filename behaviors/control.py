@@ -12,6 +12,7 @@ any network).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, is_dataclass, replace
+from itertools import repeat
 from typing import Any, Protocol
 
 import numpy as np
@@ -251,8 +252,7 @@ class Fleet:
         last = self._located
         if last is not None and last[0] is vehicles.row and last[1] is self.ids:
             return last[2]
-        get = vehicles.row.get
-        rows = np.array([get(vid, -1) for vid in self.ids], np.int64)
+        rows = np.fromiter(map(vehicles.row.get, self.ids, repeat(-1)), np.int64, len(self.ids))
         self._located = (vehicles.row, self.ids, rows)
         return rows
 
@@ -349,8 +349,8 @@ class Fleet:
             lane_pos[ask], lateral[ask] = sim.read_lane_places([r.ids[k] for k in ask])
         entered = np.flatnonzero(lane_rows != r.lane_row)
         r.lane_row, r.shape_pos = lane_rows, lane_pos * g.lane_length_scale[lane_rows]
-        names = g.lane_names
-        return AgentReadings([names[k] for k in lane_rows.tolist()], lane_pos, lateral), lane_rows, entered
+        names = g.lane_name_array[lane_rows].tolist()
+        return AgentReadings(names, lane_pos, lateral), lane_rows, entered
 
     def _shield(
         self, vehicles: VehicleState, rows: np.ndarray, reach: float, near: Neighbours | None

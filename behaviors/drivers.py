@@ -208,10 +208,9 @@ class TrafficDriver:
         r, g, own = fleet.rows, fleet.geometry, fleet.rows.own
         vehicles, rows, readings = sensing.vehicles, sensing.rows, sensing.readings
         radius = max(SEARCH_RADIUS, sensing.reach) if fleet.shield else SEARCH_RADIUS
-        near = neighbours(vehicles.position[rows], vehicles.position, radius, exclude=rows)
-        r.frame = frame = road_frame(
-            g, readings, sensing.lane_rows, vehicles.position[rows], r.angle, fleet.car
-        )
+        front = vehicles.position[rows]  # read only below: one gather serves the search, frame and lanes
+        near = neighbours(front, vehicles.position, radius, exclude=rows)
+        r.frame = frame = road_frame(g, readings, sensing.lane_rows, front, r.angle, fleet.car)
         number = g.lane_number[frame.lane_row]
         count = g.lane_num_lanes[frame.lane_row]
         normal = frame.on_normal_edge
@@ -224,9 +223,9 @@ class TrafficDriver:
         self._refresh_lane_ends(fleet, sim, readings, sensing.entered)
         handover = self._hand_over(fleet, sim, readings, count, normal, speeds[rows])
         agents = LaneAgents(
-            front=vehicles.position[rows],
+            front=front,
             lane_row=frame.lane_row,
-            shape_pos=readings.lane_pos * g.lane_length_scale[frame.lane_row],
+            shape_pos=r.shape_pos,  # the lane places just read, on the lanes' shapes
             curvature=frame.curvature,
             speed=r.speed,
             lateral_speed=own.lateral_speed,

@@ -156,6 +156,11 @@ class RoadGeometry:
         return names
 
     @functools.cached_property
+    def lane_name_array(self) -> np.ndarray:
+        """`lane_names` as an object array: a fleet's lane names are one gather, not a Python loop."""
+        return np.array(self.lane_names, object)
+
+    @functools.cached_property
     def lane_segments(self) -> np.ndarray:
         """[L] straight segments of each lane's shape (1 for a straight lane)."""
         first, last = self._lane_vertices
@@ -176,17 +181,35 @@ class RoadGeometry:
         length = self.lane_shape_length[lane_rows]
         pos = np.clip(shape_pos, 0.0, length)
         s = self.axis_s[lo] + pos
-        i = np.clip(np.searchsorted(self.axis_s, s, side="right") - 1, lo, np.maximum(hi - 1, lo))
-        a, b = self.axis_xy[i], self.axis_xy[np.minimum(i + 1, hi)]
-        d = b - a
-        span = np.hypot(d[:, 0], d[:, 1])
+        i = lo  # a lane of one segment (most of a motorway's) is posed from its segment's constants
+        a, d, span, angle = (value[lane_rows] for value in self._first_segments)
+        bent = np.flatnonzero(self.lane_segments[lane_rows] > 1)
+        if len(bent):
+            i = lo.copy()
+            i[bent] = np.clip(np.searchsorted(self.axis_s, s[bent], side="right") - 1, lo[bent], hi[bent] - 1)
+            a[bent], d[bent], span[bent], angle[bent] = self._segments(i[bent], hi[bent])
         t = np.clip((s - self.axis_s[i]) / np.maximum(span, 1e-9), 0.0, 1.0)
-        angle = np.arctan2(d[:, 1], d[:, 0])
         curvature = (
             self._segment_curvature(lo, hi, i, angle, span) if with_curvature else np.full(len(i), np.nan)
         )
         start = self.axis_s[i] - self.axis_s[lo]
         return LanePose(a + t[:, None] * d, angle, curvature, pos, length, start, start + span)
+
+    def _segments(
+        self, i: np.ndarray, last: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Start point, direction vector, length and angle of the segments starting at vertices `i`
+        of lanes whose last vertex is `last` (none beyond it: a lane of one vertex has a point)."""
+        a = self.axis_xy[i]
+        d = self.axis_xy[np.minimum(i + 1, last)] - a
+        return a, d, np.hypot(d[:, 0], d[:, 1]), np.arctan2(d[:, 1], d[:, 0])
+
+    @functools.cached_property
+    def _first_segments(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """[L] `_segments` of each lane's first segment, worked out once: `lane_pose` gathers them
+        for lanes of one segment instead of searching the axis for the segment and working it out
+        again for every car in every step."""
+        return self._segments(*self._lane_vertices)
 
     def _segment_curvature(
         self, lo: np.ndarray, hi: np.ndarray, i: np.ndarray, angle: np.ndarray, span: np.ndarray

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from behaviors.actuation import nan_as
 from behaviors.geometry import RoadGeometry
 from behaviors.sensors import Neighbours, nearest_per_slot, neighbours, within
 
@@ -168,9 +169,11 @@ def lane_coordinates(
     cos, sin = np.cos(car.angle)[pairs], np.sin(car.angle)[pairs]
     along = x * cos + y * sin
     across = y * cos - x * sin
+    bends = geometry.lane_segments[lane_row] > 1
+    if not bends.any():  # every car's lane goes on straight (a motorway's often do): no second look
+        return along, across
     at = shape_pos[pairs] + along
-    bends = (geometry.lane_segments[lane_row] > 1)[pairs]
-    beyond = bends & ((at < car.segment_start[pairs]) | (at > car.segment_end[pairs]))
+    beyond = bends[pairs] & ((at < car.segment_start[pairs]) | (at > car.segment_end[pairs]))
     if beyond.any():
         k = np.flatnonzero(beyond)
         target = front[pairs[k]] + offset[k]
@@ -219,15 +222,17 @@ def surroundings(
         width = agents.lane_width[q]
         lane_units = across * agents.fast_side_sign / width
         half = OTHER_WIDTH / 2 / width
+        slow_edge, fast_edge = lane_units - half, lane_units + half  # worked out once for all lanes
         behind = along < 0
         distance = np.abs(along) - OTHER_LENGTH
+        row_slot = q * 7 + behind  # + a lane's leader column: its leader, or the follower beside it
         slots, pairs = [], []
         for side, column in ((0, 0), (1, 2), (-1, 4)):
-            k = np.flatnonzero((lane_units + half > side - 0.5) & (lane_units - half < side + 0.5))
-            slots.append(q[k] * 7 + column + behind[k])  # leader column, or the follower one beside it
+            k = np.flatnonzero((fast_edge > side - 0.5) & (slow_edge < side + 0.5))
+            slots.append(row_slot[k] + column)
             pairs.append(k)
-        k = np.flatnonzero((lane_units - half > 1.5) & ~behind)
-        slots.append(q[k] * 7 + 6)
+        k = np.flatnonzero((slow_edge > 1.5) & ~behind)
+        slots.append(row_slot[k] + 6)
         pairs.append(k)
         slot, pair = np.concatenate(slots), np.concatenate(pairs)
         found, nearest = nearest_per_slot(n * 7, slot, distance[pair])
@@ -263,7 +268,7 @@ def observe_lanes(agents: LaneAgents, around: Surroundings) -> np.ndarray:
     put("curvature", np.clip(agents.curvature * agents.fast_side_sign * 100.0, -1.0, 1.0))
     put("lane_leads_on", np.clip(agents.lane_leads_on / LANE_END_RANGE, 0.0, 1.0))
     put("gap", np.minimum(around.gap / GAP_RANGE, 1.0))
-    relative = np.nan_to_num(around.other_speed - agents.speed[:, None], nan=0.0)
+    relative = nan_as(around.other_speed - agents.speed[:, None], 0.0)  # speeds are finite
     put("relative_speed", np.clip(relative / RELATIVE_SPEED_SCALE, -1.0, 1.0))
     put("behaviour", agents.behaviour_id)
     return obs

@@ -236,7 +236,7 @@ def nearest_per_slot(slots: int, slot: np.ndarray, distance: np.ndarray) -> tupl
     if len(slot) >= 1 << _ENTRY_BITS:
         raise ValueError("too many neighbour entries for one call")
     low = distance.min(initial=0.0)
-    rank = np.round((distance - low) / DISTANCE_RESOLUTION).astype(np.int64)
+    rank = np.rint((distance - low) / DISTANCE_RESOLUTION).astype(np.int64)  # np.round's own ufunc
     packed = (rank << _ENTRY_BITS) | np.arange(len(slot), dtype=np.int64)
     best = np.full(slots, np.iinfo(np.int64).max)
     np.minimum.at(best, slot, packed)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviors.actuation import CarModel
-from behaviors.sensors import Neighbours, nearest_per_slot, neighbours, within
+from behaviors.sensors import Neighbours, nearest_per_slot, neighbours
 
 SIDE_MARGIN = 0.3
 """Metres of lateral clearance kept between two cars side by side (a pair ends up twice this apart)."""
@@ -78,18 +78,19 @@ def surroundings(
     room = np.full((n, 2), np.inf)
     leader = np.full(n, -1, np.int64)
     gap_ahead = np.full(n, np.inf)
-    q, m, dx, dy, _ = within(near, reach) if near is not None else neighbours(front, points, reach, self_rows)
+    q, m, dx, dy, square = near if near is not None else neighbours(front, points, reach, self_rows)
     if len(q) == 0:
         return Surroundings(room, leader, gap_ahead)
+    close = square < reach**2  # the pairs within reach (`within`), masked: not copied out of `near`
     cos, sin = np.cos(axis)[q], np.sin(axis)[q]
     ahead = dx * cos + dy * sin  # the other's front, along the road and across it (positive = left)
     left = dy * cos - dx * sin
-    alongside = np.abs(ahead) < car.length + LENGTHWISE_SLACK
+    alongside = close & (np.abs(ahead) < car.length + LENGTHWISE_SLACK)
     side_gap = np.abs(left) - car.width
     beside = alongside & (side_gap > 0)  # overlapping sideways already: ahead or behind, not beside
     for side, mask in ((0, beside & (left > 0)), (1, beside & (left < 0))):
         np.minimum.at(room[:, side], q[mask], side_gap[mask])
-    path = np.flatnonzero((side_gap < PATH_MARGIN) & (ahead > 0))  # cars ahead in the agent's way
+    path = np.flatnonzero(close & (side_gap < PATH_MARGIN) & (ahead > 0))  # cars ahead in the agent's way
     q, m, gap = q[path], m[path], ahead[path] - car.length
     agent, first = nearest_per_slot(n, q, gap)
     leader[agent] = m[first]
