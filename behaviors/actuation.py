@@ -514,7 +514,10 @@ def letting_in(traffic: LaneTraffic, lane_leads_on: np.ndarray, lateral: LaneDri
         closing = np.maximum(t.speed - ahead_speed, 0.0)
         needed = closing**2 / (2.0 * np.maximum(gap - law.min_gap, 0.1))  # to keep clear of it
         there &= needed <= lateral.safe_decel
-        behind = behind_leader(t.free, np.where(there, gap, np.inf), ahead_speed, courtesy)
+        # its being faster earns it no shorter gap: SUMO's driver wants the full one before it moves
+        behind = behind_leader(
+            t.free, np.where(there, gap, np.inf), np.minimum(ahead_speed, t.speed), courtesy
+        )
         gentle = np.maximum(behind, -np.maximum(law.comfortable_decel, needed))
         out = np.minimum(out, np.where(there, gentle, np.inf))
     return out
