@@ -306,7 +306,7 @@ class TrafficDriver:
         ends = LaneEnds(own.lane_ends, own.best_end, own.one_lane_at)
         handover = decide(
             ends, r.handed, r.speed, readings.lane_pos, readings.lateral_pos, own.lane_number, lanes,
-            normal, half_room, signal,
+            normal, half_room, signal, np.where(r.handed, 0.0, own.lateral_speed),
         )  # fmt: skip
         if handover.take.any():
             own.lateral_speed[handover.take] = 0.0

@@ -68,13 +68,17 @@ def straddling_an_ending_lane(
     lanes: np.ndarray,
     reach: np.ndarray,
     half_room: np.ndarray,
+    lateral_speed: np.ndarray | None = None,
 ) -> np.ndarray:
     """Agents whose body reaches over the line into a neighbouring lane that ends within `reach`:
-    where that lane drops, the road narrows under them."""
+    where that lane drops, the road narrows under them. One moving away from that lane (`lateral_speed`
+    [N], + = fast side; None: nobody moves) is on its way out of it, as a car that has just left it
+    is: taken for a step or two and given back, its sideways motion jumped at both ends."""
     leads = ends.own_fast_slow - lane_pos[:, None]
     short = (leads < reach[:, None]) & (ends.own_fast_slow < ends.best[:, None] - LANE_END_MARGIN)
-    over_fast = (lateral_pos > half_room) & (lane_number < lanes - 1) & short[:, 1]
-    over_slow = (lateral_pos < -half_room) & (lane_number > 0) & short[:, 2]
+    away = np.zeros(len(lateral_pos)) if lateral_speed is None else lateral_speed
+    over_fast = (lateral_pos > half_room) & (lane_number < lanes - 1) & short[:, 1] & (away >= 0.0)
+    over_slow = (lateral_pos < -half_room) & (lane_number > 0) & short[:, 2] & (away <= 0.0)
     return over_fast | over_slow
 
 
@@ -89,10 +93,12 @@ def decide(
     normal: np.ndarray,
     half_room: np.ndarray,
     signal: np.ndarray,
+    lateral_speed: np.ndarray | None = None,
 ) -> Handover:
     """Who SUMO takes and who it gives back, for agents at `lane_pos`/`lateral_pos` in lane
     `lane_number` of `lanes` (`normal`: on a normal edge, not inside a junction), with a red or
-    yellow `signal` ahead; `half_room` is how far a centre may move before the body meets a line."""
+    yellow `signal` ahead; `half_room` is how far a centre may move before the body meets a line;
+    `lateral_speed` [N] (None: 0) the agents' own sideways speed, + = fast side."""
     own_end = ends.own_fast_slow[:, 0]
     own_left = own_end - lane_pos
     reach = handover_reach(speed)
@@ -101,7 +107,9 @@ def decide(
     ramp_reach = reach * (1 + np.maximum(lane_number, 0))
     ending = (own_left < reach) & (ends.best > own_end + LANE_END_MARGIN)
     ending |= one_lane_left < ramp_reach  # leaving the carriageway: SUMO takes the car to the ramp
-    straddling = straddling_an_ending_lane(ends, lane_pos, lateral_pos, lane_number, lanes, reach, half_room)
+    straddling = straddling_an_ending_lane(
+        ends, lane_pos, lateral_pos, lane_number, lanes, reach, half_room, lateral_speed
+    )
     ending |= straddling
     needs_sumo = (normal & (ending | (lanes < 2))) | signal
     free = (

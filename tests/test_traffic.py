@@ -29,7 +29,7 @@ from behaviors.control import Fleet
 from behaviors.drivers import TrafficDriver, make_driver
 from behaviors.env import make_env
 from behaviors.geometry import RoadGeometry, build_geometry, load_geometry
-from behaviors.handover import HANDOVER_DISTANCE
+from behaviors.handover import HANDOVER_DISTANCE, LaneEnds, straddling_an_ending_lane
 from behaviors.lanes import (
     GAP_RANGE,
     TRAFFIC_OBS_SIZE,
@@ -451,6 +451,21 @@ def test_a_change_leaves_the_new_follower_a_second_and_a_merging_car_half_that()
     merging = np.array([[False, False], [False, False], [True, False]])
     ok = gap_acceptable(lane_traffic(speed, desired, gap, other, ruled.following), ruled, merging)[:, 0]
     assert ok.tolist() == [False, True, True]
+
+
+def test_sumo_takes_a_car_over_the_line_of_an_ending_lane_unless_it_is_moving_away_from_it():
+    # the slow-side lane ends 100 m on, the own and fast lanes lead on; the body 0.3 m over its line
+    ends = LaneEnds(np.array([[2000.0, 2000.0, 100.0]]), np.array([2000.0]), np.array([np.inf]))
+
+    def taken(lateral_speed: float | None) -> bool:
+        speed = None if lateral_speed is None else np.array([lateral_speed])
+        return bool(straddling_an_ending_lane(
+            ends, np.zeros(1), np.array([-1.15]), np.array([1]), np.array([3]), np.array([250.0]),
+            np.array([0.85]), speed,
+        )[0])  # fmt: skip
+
+    assert taken(None) and taken(0.0) and taken(-0.3)  # holding there, or drifting towards it
+    assert not taken(0.4)  # just out of it, on its way to the own lane's centre
 
 
 def test_a_standing_car_edges_sideways_into_a_gap():
