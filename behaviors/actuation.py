@@ -197,11 +197,6 @@ def following_accel(
     return behind_leader(free_road(speed, desired_speed, law), gap, nan_as(leader_speed, 0.0), law)
 
 
-CAR_ROOM = 7.0
-"""m: the length of road a car let in takes up in front of the one letting it in (a 5 m car, 2 m
-standing gap)."""
-
-
 @dataclass(frozen=True)
 class LaneDriving:
     """How the traffic driver executes what its policy chooses (the paper's heading model,
@@ -331,9 +326,8 @@ def gap_acceptable(
     as an agent does, may not brake in time), nor be nearer behind than `lag_headway` at its speed.
     Gap 0 in `traffic`: alongside, or no lane. Where `merging` [N, 2] (a car whose lane ends,
     towards the side it leaves to), the car's own braking and the follower's lag are judged at
-    `let_in_headway`, the gap it falls in to: by the full headway no
-    gap behind a car beside it at its own speed is ever room (the car stood at the end of a dropped
-    lane)."""
+    `let_in_headway`, the gap it falls in to: by the full headway no gap behind a car beside it at
+    its own speed is ever room (the car stood at the end of a dropped lane)."""
     t, law = traffic, lateral.following
     out = np.zeros((len(t.speed), 2), bool)
     courtesy = replace(law, time_headway=lateral.let_in_headway)
@@ -502,7 +496,7 @@ def letting_in(traffic: LaneTraffic, lane_leads_on: np.ndarray, lateral: LaneDri
     law = lateral.following
     courtesy = replace(law, min_gap=law.min_gap + 1.0)
     reach = look_ahead(t.speed, lateral)
-    own_room = t.gap[:, 0] - CAR_ROOM
+    own_room = t.gap[:, 0] - (CarModel.length + law.min_gap)  # the road a car let in takes up
     out = np.full(len(t.speed), np.inf)
     for column, lane in ((2, 1), (4, 2)):
         gap, ahead_speed = t.gap[:, column], t.known_speed[:, column]

@@ -306,7 +306,7 @@ class TrafficDriver:
         ends = LaneEnds(own.lane_ends, own.best_end, own.one_lane_at)
         handover = decide(
             ends, r.handed, r.speed, readings.lane_pos, readings.lateral_pos, own.lane_number, lanes,
-            normal, half_room, signal, np.where(r.handed, 0.0, own.lateral_speed),
+            normal, half_room, signal, own.lateral_speed,  # 0 where SUMO drives (`actuate`)
         )  # fmt: skip
         if handover.take.any():
             own.lateral_speed[handover.take] = 0.0
@@ -319,8 +319,7 @@ class TrafficDriver:
         """How the two behaviours use the lanes. Overtakers pass any leader slower than they want
         and go back right after a pass, wherever they are. Keepers keep the lane they are in, as
         lane keepers do: they pass only a much slower leader that has held them up a while, and move
-        right unasked only out of the
-        fast-most lane, which the law leaves for passing."""
+        right unasked only out of the fast-most lane, which the law leaves for passing."""
         overtaker = lanes.behaviour_id > 0.5
         fast_most = lanes.lane_number == lanes.lanes - 1
         ruled = self.lateral

@@ -26,6 +26,7 @@ import numpy as np
 
 from behaviors.errors import BehaveError
 from behaviors.sumo_home import sumo_binary
+from sumo_scenarios.build import PASSENGER_DECEL
 
 COLLISION_OPTIONS = (
     "--collision.action",
@@ -39,10 +40,6 @@ COLLISION_OPTIONS = (
 )
 
 
-SUMO_DECEL = 4.5
-"""m/s^2: SUMO's passenger car's braking, which agents show SUMO's followers (vType apparentDecel)
-and brake with at most while SUMO drives them (braking at the policy's 7.5 there, they were run
-into from behind by followers who kept room for 4.5)."""
 SUMO_SPEED_MODE = 31
 SUMO_LANE_CHANGE_MODE = 1621
 """SUMO's default speed and lane-change modes: its own safe driving and strategic lane choice."""
@@ -346,7 +343,8 @@ class SumoSim:
     def hand_to_sumo(self, ids: Sequence[str]) -> None:
         """SUMO's own driver takes these agents (default speed and lane-change modes), with the
         lateral comfort of SUMO's drivers (1 m/s^2, 1 m/s) instead of the agents' exact moves and
-        a passenger car's braking (`SUMO_DECEL`).
+        a passenger car's braking (`PASSENGER_DECEL`: braking at the policy's 7.5 there, agents were run
+        into from behind by followers who kept room for 4.5).
         SUMO holds those limits in a copy of the car's vType, `TYPE@id`, which FCD shows while
         SUMO drives it."""
         v = self._sumo.vehicle
@@ -360,7 +358,7 @@ class SumoSim:
             v.setLaneChangeMode(vid, SUMO_LANE_CHANGE_MODE)
             v.setParameter(vid, "laneChangeModel.lcAccelLat", "1.0")
             v.setMaxSpeedLat(vid, 1.0)
-            v.setDecel(vid, SUMO_DECEL)  # as its vType shows followers (apparentDecel): no harder
+            v.setDecel(vid, PASSENGER_DECEL)  # as its vType shows followers (apparentDecel): no harder
 
     def take_back(self, ids: Sequence[str]) -> None:
         """The policy drives again: its own vType back in place of SUMO's copy (so FCD tells who

@@ -197,6 +197,11 @@ def write_routes(path: Path, route_id: str, edge_ids: Sequence[str], repeat: int
     write_xml(root, path)
 
 
+PASSENGER_DECEL = 4.5
+"""m/s^2: SUMO's passenger car's braking (its vType default), which agents show SUMO's followers
+(`apparentDecel`) and brake with at most while SUMO drives them (`SumoSim.hand_to_sumo`)."""
+
+
 def write_vtypes(path: Path) -> None:
     """The project's vehicle types, shared by every scenario.
 
@@ -216,7 +221,7 @@ def write_vtypes(path: Path) -> None:
         "speedDev": "0",
         "accel": "3.0",
         "decel": "7.5",
-        "apparentDecel": "4.5",
+        "apparentDecel": f"{PASSENGER_DECEL:g}",
         "emergencyDecel": "9",
         "carFollowModel": "Krauss",
         "sigma": "0",
