@@ -596,7 +596,7 @@ class Population:
             return
         kinds = ["overtaker" if draws[v] < c.share * c.overtaker_fraction else "keeper" for v in agents]
         for vid, kind in zip(agents, kinds, strict=True):
-            sim.set_type(vid, OVERTAKER_TYPE if kind == "overtaker" else KEEPER_TYPE)
+            sim.set_agent_type(vid, OVERTAKER_TYPE if kind == "overtaker" else KEEPER_TYPE)
         sim.take_control(agents)
         behaviour = np.array([1.0 if kind == "overtaker" else 0.0 for kind in kinds])
         self.fleet.add(agents, sim.read_speeds(agents), behaviour, desired_fractions(behaviour, self.rng))

@@ -26,7 +26,7 @@ import numpy as np
 
 from behaviors.errors import BehaveError
 from behaviors.sumo_home import sumo_binary
-from sumo_scenarios.build import PASSENGER_DECEL
+from sumo_scenarios.build import AGENT_LC_ACCEL_LAT, PASSENGER_DECEL
 
 COLLISION_OPTIONS = (
     "--collision.action",
@@ -365,8 +365,7 @@ class SumoSim:
         drives), checks off, and `changeSublane` exact again (see vtypes)."""
         v = self._sumo.vehicle
         for vid in ids:
-            v.setType(vid, v.getTypeID(vid).removesuffix(f"@{vid}"))
-            v.setParameter(vid, "laneChangeModel.lcAccelLat", "100")
+            self.set_agent_type(vid, v.getTypeID(vid).removesuffix(f"@{vid}"))
         self.take_control(ids)
 
     def remove(self, ids: Sequence[str], reason: int = 0) -> None:
@@ -394,8 +393,14 @@ class SumoSim:
         """(length, width) in m of a vehicle's type."""
         return self._sumo.vehicle.getLength(vid), self._sumo.vehicle.getWidth(vid)
 
-    def set_type(self, vid: str, vtype: str) -> None:
-        self._sumo.vehicle.setType(vid, vtype)
+    def set_agent_type(self, vid: str, vtype: str) -> None:
+        """An agent's vType for a car SUMO inserted with another: SUMO builds a car's lane-change
+        model once, from the vType it departs with, and `setType` leaves it, so the agents' lcAccelLat
+        is set on the car itself (with a scenario's default of 1, SUMO carried out the policy's
+        sideways moves at about 0.5 m/s, and a lane change took 9-10 s instead of 5)."""
+        v = self._sumo.vehicle
+        v.setType(vid, vtype)
+        v.setParameter(vid, "laneChangeModel.lcAccelLat", f"{AGENT_LC_ACCEL_LAT:g}")
 
     @functools.cached_property
     def has_signals(self) -> bool:

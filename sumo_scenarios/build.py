@@ -202,6 +202,11 @@ PASSENGER_DECEL = 4.5
 (`apparentDecel`) and brake with at most while SUMO drives them (`SumoSim.hand_to_sumo`)."""
 
 
+AGENT_LC_ACCEL_LAT = 100.0
+"""m/s^2: the agents' lcAccelLat, so large that SUMO's sublane model moves a car exactly as far
+sideways in one step as `changeSublane` asks (with SUMO's default of 1 it smooths the request)."""
+
+
 def write_vtypes(path: Path) -> None:
     """The project's vehicle types, shared by every scenario.
 
@@ -226,7 +231,7 @@ def write_vtypes(path: Path) -> None:
         "carFollowModel": "Krauss",
         "sigma": "0",
         "lcModel": "SL2015",
-        "lcAccelLat": "100",
+        "lcAccelLat": f"{AGENT_LC_ACCEL_LAT:g}",
         "maxSpeedLat": "5",
         "latAlignment": "center",
     }

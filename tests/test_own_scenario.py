@@ -301,3 +301,26 @@ def test_routes_add_to_the_scenarios_own_demand(tmp_path):
         and any(v.startswith("car0.") for v in ids)
         and any(v.startswith("lorry0.") for v in ids)
     )
+
+
+def test_a_scenario_car_made_an_agent_moves_sideways_exactly_as_asked(tmp_path):
+    """SUMO keeps the lane-change model a car departed with (the scenario's lcAccelLat 1, which
+    smooths a sideways request); made an agent, the car moves as far as asked in one step."""
+    cfg = roads_scenario(tmp_path, roads=1, end=30.0)
+    scenario = read_sumocfg(cfg)
+    options = SimOptions(net=scenario.net, routes=scenario.routes, additional=(get_scenario("tiny").vtypes,),
+                         step_length=0.5)  # fmt: skip
+    with SumoSim(options) as sim:
+        for _ in range(10):
+            sim.step()
+        cars = [v for v in sim.vehicle_ids() if v.startswith("car")][:3]
+        assert len(cars) == 3
+        for vid in cars:
+            sim.set_agent_type(vid, KEEPER_TYPE)
+        sim.take_control(cars)
+        for _ in range(4):
+            before = sim.read_lane_places(cars)[1]
+            asked = np.where(before > 0, -0.3, 0.3)
+            sim.command_agents(cars, sim.read_speeds(cars), asked)
+            sim.step()
+            assert np.allclose(sim.read_lane_places(cars)[1] - before, asked, atol=1e-6)
