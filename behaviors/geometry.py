@@ -48,7 +48,7 @@ _LANE_GAP = 1.0e6
 """Spacing between lanes in the concatenated lane-position axis (keeps lanes apart)."""
 
 
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 """Bumped whenever what the geometry cache holds changes: older caches are rebuilt."""
 
 CACHE_MIN_BYTES = 2_000_000
@@ -103,6 +103,8 @@ class RoadGeometry:
     axis_angle: np.ndarray  # [P] unwrapped tangent angle at each vertex
     axis_curvature: np.ndarray  # [P] curvature of the segment starting at vertex
     axis_xy: np.ndarray  # [P, 2] the vertices themselves
+    lane_next: np.ndarray  # [L] row of the one car lane a car drives on to from each lane's end (a
+    # junction's lane, or the lane after it), -1 where none or several
     edges: dict[str, EdgeInfo]
     car_successors: dict[str, tuple[str, ...]] = field(default_factory=dict)
     """Normal edge -> the normal edges a passenger car may drive on to (car lanes, car connections)."""
@@ -279,7 +281,8 @@ def load_geometry(
     if not any(is_normal and len(lanes) >= 2 for _, lanes, is_normal in tables.edges):
         raise BehaveError(f"network {path} has no multi-lane edge; behave needs at least one")
     say(f"building road geometry of {len(tables.edges):,} edges")
-    geometry = build_geometry(tables.edges, sorted(tables.links), tables.lefthand, sorted(tables.car_links))
+    links, car_links, lane_links = sorted(tables.links), sorted(tables.car_links), sorted(tables.lane_next)
+    geometry = build_geometry(tables.edges, links, tables.lefthand, car_links, lane_links)
     if cache and stat.st_size >= CACHE_MIN_BYTES:
         with contextlib.suppress(BehaveError):
             write_cache(cached, key, geometry)
@@ -293,7 +296,7 @@ def cache_path(net: Path) -> Path:
 
 LANE_TABLES = (
     *("lane_number", "lane_num_lanes", "lane_normal", "lane_width", "lane_speed", "lane_length_scale"),
-    *("lane_base", "axis_s", "axis_angle", "axis_curvature", "axis_xy", "seg_a", "seg_b"),
+    *("lane_base", "axis_s", "axis_angle", "axis_curvature", "axis_xy", "lane_next", "seg_a", "seg_b"),
 )
 
 
@@ -347,6 +350,7 @@ def build_geometry(
     links: Sequence[tuple[str, str]] = (),
     lefthand: bool = False,
     car_links: Sequence[tuple[str, str]] = (),
+    lane_links: Sequence[tuple[str, str]] = (),
 ) -> RoadGeometry:
     """Geometry from plain edge/lane data (car lanes ordered as SUMO numbers them, lane 0 outermost).
 
@@ -378,10 +382,12 @@ def build_geometry(
     successors: dict[str, list[str]] = {}
     for src, dst in car_links:
         successors.setdefault(src, []).append(dst)
+    lane_index = {spec[0]: k for k, spec in enumerate(specs)}
     return RoadGeometry(
         seg_a=a[keep],
         seg_b=b[keep],
-        lane_index={spec[0]: k for k, spec in enumerate(specs)},
+        lane_index=lane_index,
+        lane_next=next_lanes(lane_index, lane_links),
         lane_edge=[edge_id for edge_id, lanes, _ in edges for _ in lanes],
         lane_number=np.concatenate([np.arange(len(lanes)) for _, lanes, _ in edges]).astype(np.int64),
         lane_num_lanes=np.repeat(
@@ -397,6 +403,19 @@ def build_geometry(
         lefthand=lefthand,
         **axes,
     )
+
+
+def next_lanes(lane_index: dict[str, int], lane_links: Sequence[tuple[str, str]]) -> np.ndarray:
+    """[L] the row of each lane's one successor among `lane_links` (lane id pairs), -1 where it has
+    none or several (where lanes part, which one a car takes is its route's)."""
+    out = np.full(len(lane_index), -1, np.int64)
+    count = np.zeros(len(lane_index), np.int64)
+    for src, dst in lane_links:
+        if src in lane_index and dst in lane_index:
+            out[lane_index[src]] = lane_index[dst]
+            count[lane_index[src]] += 1
+    out[count > 1] = -1
+    return out
 
 
 def edge_info(lanes: list[LaneSpec], normal: bool) -> EdgeInfo:

@@ -154,8 +154,9 @@ def lane_coordinates(
     `along` runs along the lane's centre line from the car's front, `across` is the distance
     from that line (+ geometric left). A lane is a polyline and SUMO places cars on it, so
     the point is projected onto the polyline itself: a car in the same lane beyond a vertex
-    where the road turns 12 degrees stays in that lane. Beyond the lane's ends the road is
-    taken to go on with the end's curvature (the next edge is not known here). A segment is
+    where the road turns 12 degrees stays in that lane. Beyond the lane's end the car's lane
+    goes on as the lane it leads into, where that is one (`RoadGeometry.lane_next`: through the
+    junction and into the next edge), else with the end's curvature. A segment is
     straight, so a projection that stays on the car's own segment is exact at once; only the
     others (beyond a vertex, off the lane's ends) are projected once more, unless the lane is one
     straight segment, which goes on straight.
@@ -170,15 +171,53 @@ def lane_coordinates(
     along = x * cos + y * sin
     across = y * cos - x * sin
     bends = geometry.lane_segments[lane_row] > 1
-    if not bends.any():  # every car's lane goes on straight (a motorway's often do): no second look
-        return along, across
-    at = shape_pos[pairs] + along
-    beyond = bends[pairs] & ((at < car.segment_start[pairs]) | (at > car.segment_end[pairs]))
-    if beyond.any():
-        k = np.flatnonzero(beyond)
-        target = front[pairs[k]] + offset[k]
-        along[k], across[k] = _project(geometry, lane_row[pairs[k]], shape_pos[pairs[k]], target, along[k])
+    if bends.any():  # a lane of one straight segment (a motorway's often are) needs no second look
+        at = shape_pos[pairs] + along
+        beyond = bends[pairs] & ((at < car.segment_start[pairs]) | (at > car.segment_end[pairs]))
+        if beyond.any():
+            k = np.flatnonzero(beyond)
+            own, target = pairs[k], front[pairs[k]] + offset[k]
+            along[k], across[k] = _project(geometry, lane_row[own], shape_pos[own], target, along[k])
+    leads_into = geometry.lane_next[lane_row] >= 0
+    if leads_into.any():
+        to_end = geometry.lane_shape_length[lane_row] - shape_pos
+        past = np.flatnonzero(leads_into[pairs] & (along > to_end[pairs]))
+        if len(past):
+            target = front[pairs[past]] + offset[past]
+            along[past], across[past] = _along_next_lanes(
+                geometry, lane_row[pairs[past]], to_end[pairs[past]], target, along[past]
+            )
     return along, across
+
+
+NEXT_LANES_SEEN = 3
+"""Lanes followed beyond a car's own lane's end: an edge's end, a junction's lane and the next edge
+cover GAP_RANGE but on the shortest edges."""
+
+
+def _along_next_lanes(
+    geometry: RoadGeometry, lane_row: np.ndarray, to_end: np.ndarray, target: np.ndarray, along: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(along, across) of `target`s beyond the end (`to_end` metres ahead of the car) of lanes that
+    lead into one lane: measured along that lane, and the one after it, as the car will drive
+    (extrapolating the own lane's end misplaced a car ahead where the lanes shift sideways through
+    a junction: at a lane drop, the queue in the lane ahead read as the slow-side lane's)."""
+    out_along, out_across = along.copy(), np.zeros(len(along))
+    todo = np.arange(len(along))
+    row, start, guess = lane_row, to_end, along - to_end
+    for hop in range(NEXT_LANES_SEEN):
+        row = geometry.lane_next[row]
+        ahead, across = _project(geometry, row, np.zeros(len(row)), target, guess)
+        length = geometry.lane_shape_length[row]
+        further = (ahead > length) & (geometry.lane_next[row] >= 0) & (hop + 1 < NEXT_LANES_SEEN)
+        done = ~further
+        out_along[todo[done]] = start[done] + ahead[done]
+        out_across[todo[done]] = across[done]
+        todo, row, target = todo[further], row[further], target[further]
+        start, guess = start[further] + length[further], ahead[further] - length[further]
+        if not len(todo):
+            break
+    return out_along, out_across
 
 
 def _project(

@@ -32,6 +32,8 @@ class NetTables:
     links: dict[tuple[str, str], str] = field(default_factory=dict)  # normal -> normal: first via lane
     car_links: set[tuple[str, str]] = field(default_factory=set)  # ... that a passenger car may take
     lane_links: set[tuple[str, str]] = field(default_factory=set)  # lane -> lane of those car links
+    lane_next: set[tuple[str, str]] = field(default_factory=set)  # car lane -> the car lane a car drives
+    # on to: a connection's via lane (the junction's), or from a via lane to its normal lane
     lefthand: bool = False
 
 
@@ -80,6 +82,9 @@ def add_connection(out: NetTables, elem: ET.Element, normal: set[str], car_lane:
     """A connection between normal edges joins them (its via lane is the junction's length), and
     joins them for cars if both its lanes and the connection itself allow a car."""
     src, dst = elem.get("from", ""), elem.get("to", "")
+    here, there = f"{src}_{elem.get('fromLane')}", elem.get("via") or f"{dst}_{elem.get('toLane')}"
+    if here in car_lane and there in car_lane and allows_car(elem.get("allow"), elem.get("disallow")):
+        out.lane_next.add((here, there))
     if src not in normal or dst not in normal:
         return
     out.links.setdefault((src, dst), elem.get("via", ""))

@@ -14,6 +14,7 @@ import pytest
 
 from behaviors.agents_table import agents_path
 from behaviors.export import read_fcd
+from behaviors.geometry import load_geometry
 from behaviors.populate import config_from, populate
 from sumo_scenarios.osm_like import build_osm_like
 
@@ -36,3 +37,19 @@ def test_agents_drive_an_osm_like_net_and_leave_it_by_the_exit(tmp_path, name):
     assert len(out) >= 1 and (last_lane[out].str.rpartition("_")[0] == net.exit_edge).all()
     joined = agents.loc[agents["id"].str.startswith("joining."), "id"]
     assert (last_lane[joined].str.rpartition("_")[0] != net.ramp_edge).any()  # onto the motorway
+
+
+def test_the_geometry_knows_the_lane_each_lane_leads_into(tmp_path):
+    """Sensing follows a lane through a junction into the lane it leads into (lanes.lane_coordinates);
+    where a lane ends, or parts (to the exit or on), there is no one such lane."""
+    built = build_osm_like("lanedrop", tmp_path)
+    geometry = load_geometry(built.net)
+
+    def leads_into(lane: str) -> str | None:
+        row = geometry.lane_next[geometry.lane_index[lane]]
+        return geometry.lane_names[row] if row >= 0 else None
+
+    assert leads_into("m0_1") == ":n1_0_0" and leads_into(":n1_0_0") == "m1_0"  # on past the dropped lane
+    assert leads_into("m0_0") is None  # the dropped lane
+    assert leads_into("m2_0") is None  # to the exit or on: the route's choice
+    assert leads_into("m2_1") == ":n3_1_1" and leads_into(":n3_1_1") == "m3_1"

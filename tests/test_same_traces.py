@@ -77,7 +77,7 @@ def sha256(path: Path) -> str:
 RECORDED = {
     "highway_traffic": "c423230a7403511c573fcecc46476c71a9b1aee6a0c7cc3b56c1f7a0edcdf5ee",
     "highway_paper": "357ab8c99315bc4115ad846f45422bc7474499c6b7343aee7b6a177dba96291a",
-    "share_lanedrop": "9678f33f5f39e0169d0f4c7013711411accfc4a8696bbd18e16c1ff8d9a7fa4a",
+    "share_lanedrop": "38a4921f2bf729e66d96f92551e195b32a393a7b6f0939a5f6cee11283f6341f",
 }
 """sha256 of each case's FCD (csv), recorded on the code before the driver became one object (the
 traffic case again when lane changes began to wait for an acceptable gap, and both traffic-driver
@@ -91,7 +91,8 @@ through cars to let in a car from an ending lane from further back, and again wh
 to want a 1 s lag behind and SUMO's cars to see agents' braking as their own, and the lane-drop case
 when a car let in earned no shorter gap by being faster and SUMO's driver of an agent braked as a
 passenger car does, and again when a scenario's car made an agent got the agents' lcAccelLat, so
-that SUMO moves it sideways as the driver asks: a change of behaviour on purpose
+that SUMO moves it sideways as the driver asks, and again when sensing began to follow a lane
+through a junction into the lane it leads into: a change of behaviour on purpose
 is a new recording, in the same commit)."""
 
 

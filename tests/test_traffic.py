@@ -252,6 +252,45 @@ def test_neighbours_beyond_the_end_of_a_curved_lane_stay_in_their_lanes():
     assert around.gap[0, 4] == pytest.approx(expected, abs=1.5)  # the outer lane is lane 0 here
 
 
+def shifting_junction(linked: bool) -> RoadGeometry:
+    """Two 3.5 m lanes along +x to x = 300, a 20 m junction, and two lanes on, the lane ahead of the
+    left one (a_1) one lane further right: a_1 leads into b_0, as at a lane drop's merge."""
+    a = [(f"a_{k}", [(0.0, 3.5 * k), (300.0, 3.5 * k)], 3.5, 33.3, 300.0) for k in range(2)]
+    via = [(":j_0", [(300.0, 3.5), (320.0, 0.0)], 3.5, 33.3, 20.3)]
+    b = [(f"b_{k}", [(320.0, 3.5 * k), (800.0, 3.5 * k)], 3.5, 33.3, 480.0) for k in range(2)]
+    lane_links = [("a_1", ":j_0"), (":j_0", "b_0")] if linked else []
+    edges = [("a", a, True), (":j", via, False), ("b", b, True)]
+    return build_geometry(edges, [("a", "b")], car_links=[("a", "b")], lane_links=lane_links)
+
+
+@pytest.mark.parametrize("linked", [True, False])
+def test_a_car_ahead_beyond_a_junction_is_placed_in_the_lane_its_own_lane_leads_into(linked):
+    """The car 60 m into b_0 is in the lane a_1 leads into: the leader, not a car one lane over on
+    the slow side, which is where the straight line from a_1's end puts it (and the car in b_1
+    its leader)."""
+    road = shifting_junction(linked)
+    agent = one_agent(
+        front=np.array([[250.0, 3.5]]), lane_row=np.array([road.lane_index["a_1"]]),
+        shape_pos=np.array([250.0]), lane_number=np.array([1]), lanes=np.array([2]),
+    )  # fmt: skip
+    positions = np.array([[250.0, 3.5], [380.0, 0.0], [380.0, 3.5]])
+    around = surroundings(agent, positions, np.array([30.0, 5.0, 30.0]), np.array([0]), road)
+    through_junction = 50.0 + np.hypot(20.0, 3.5) + 60.0 - 5.0
+    if linked:
+        assert around.gap[0, 0] == pytest.approx(through_junction, abs=0.5)
+        assert around.other_speed[0, 0] == 5.0
+        inside = one_agent(
+            front=np.array([[310.0, 1.75]]), lane_row=np.array([road.lane_index[":j_0"]]),
+            shape_pos=np.array([np.hypot(10.0, 1.75)]), lane_number=np.array([0]), lanes=np.array([1]),
+        )  # fmt: skip
+        positions[0] = (310.0, 1.75)
+        around = surroundings(inside, positions, np.array([30.0, 5.0, 30.0]), np.array([0]), road)
+        assert around.gap[0, 0] == pytest.approx(np.hypot(10.0, 1.75) + 60.0 - 5.0, abs=0.5)
+        assert around.other_speed[0, 0] == 5.0
+    else:
+        assert around.other_speed[0, 0] == 30.0 and around.other_speed[0, 4] == 5.0
+
+
 NO_LEADERS = (np.full((1, 6), np.inf), np.full((1, 6), np.nan))
 
 
