@@ -253,10 +253,10 @@ class LaneDriving:
     min_time_headway: float = 1.15  # s: the policy's accel may not push the car closer behind its leader
     diagonal_headway: float = 0.3  # s: kept behind the fast-side lane's leader not to be passed
     pass_margin: float = 2.0  # m/s: a leader this much slower than the car wants is a reason to pass
-    keeper_pass_margin: float = 4.0  # m/s: the same for a lane keeper, who passes only a much slower car
+    keeper_pass_margin: float = 6.0  # m/s: the same for a lane keeper, who passes only a much slower car
     patience: float = 1.0  # s: held up this long before passing (a leader seen for a moment, half out
     # of the lane as it changes away, is no reason)
-    keeper_patience: float = 5.0  # s: the same for a lane keeper, who follows a while first
+    keeper_patience: float = 10.0  # s: the same for a lane keeper, who follows a while first
     let_in_headway: float = 0.5  # s: kept behind a car being let in, until it has moved over
     # m/s: above this the fast-side leader is not passed on its slow side
     no_undertaking_above: float = 60 / 3.6

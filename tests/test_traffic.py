@@ -1079,10 +1079,10 @@ def test_overtakers_pass_a_slower_leader_unasked_and_keepers_only_a_much_slower_
     assert set(drive_lanes([1.0] * 10, lateral=ruled, leaders=slower, behaviour="keeper")[:, 4]) == {0}
     truck = leaders_of(lead=(0, 40.0, 22.0))  # 8 m/s slower
     assert set(drive_lanes([0.0] * 10, lateral=ruled, leaders=truck, behaviour="keeper")[:, 4]) == {0}
-    asked = drive_lanes([1.0] * 50, lateral=ruled, leaders=truck, behaviour="keeper")
+    asked = drive_lanes([1.0] * 100, lateral=ruled, leaders=truck, behaviour="keeper")
     slowed = np.flatnonzero(asked[:, 5] < 30.0 - ruled.keeper_pass_margin)[0]
     waited = slowed + round(ruled.keeper_patience / 0.2) - 1
-    assert not asked[:waited, 4].any() and asked[:, 4].max() == 1  # asked: once slowed down, and after 5 s
+    assert not asked[:waited, 4].any() and asked[:, 4].max() == 1  # asked: once slowed down, and after 10 s
     gap, other = leaders_of(lead=(0, 40.0, 27.0), fast_lead=(2, 90.0, 27.0))  # the fast lane no better
     no_better = drive_lanes([0.0] * 10, lateral=ruled, leaders=(gap, other), behaviour="overtaker")
     assert no_better[:, 4].max() <= 0  # no move to the fast side (it keeps right into the free lane)
