@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from behaviors.geometry import wrap_angle
+from sumo_scenarios.build import PASSENGER_MIN_GAP
 
 
 @dataclass(frozen=True)
@@ -127,7 +128,9 @@ class CarFollowing:
     """
 
     time_headway: float = 1.2  # s: desired gap at speed (drivers: median about 1.4 s, fined below 0.9)
-    min_gap: float = 2.0  # m: bumper to bumper when standing
+    min_gap: float = PASSENGER_MIN_GAP  # m: bumper to bumper when standing, as SUMO's cars stand (at
+    # 2 m, a SUMO driver merging in front of an agent waited for the 2.5 m it keeps itself, the agent
+    # for it to move over: at a lane drop, standing queues that lasted minutes)
     accel: float = 2.0  # m/s^2: pulling away (SUMO's passenger cars: 2.6)
     comfortable_decel: float = 2.0  # m/s^2
     exponent: float = 4.0

@@ -202,6 +202,10 @@ PASSENGER_DECEL = 4.5
 (`apparentDecel`) and brake with at most while SUMO drives them (`SumoSim.hand_to_sumo`)."""
 
 
+PASSENGER_MIN_GAP = 2.5
+"""m: SUMO's passenger car's standing gap (its vType default), the agents' and SUMO's cars' alike;
+the agents' car-following law stands as far behind a car (`actuation.CarFollowing.min_gap`)."""
+
 AGENT_LC_ACCEL_LAT = 100.0
 """m/s^2: the agents' lcAccelLat, so large that SUMO's sublane model moves a car exactly as far
 sideways in one step as `changeSublane` asks (with SUMO's default of 1 it smooths the request)."""
@@ -220,7 +224,7 @@ def write_vtypes(path: Path) -> None:
         "vClass": "passenger",
         "length": "5",
         "width": "1.8",
-        "minGap": "2.5",
+        "minGap": f"{PASSENGER_MIN_GAP:g}",
         "maxSpeed": "50",
         "speedFactor": "1",
         "speedDev": "0",
@@ -239,7 +243,7 @@ def write_vtypes(path: Path) -> None:
         "vClass": "passenger",
         "length": "5",
         "width": "1.8",
-        "minGap": "2.5",
+        "minGap": f"{PASSENGER_MIN_GAP:g}",
         "carFollowModel": "Krauss",
         "lcModel": "SL2015",
     }

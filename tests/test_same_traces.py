@@ -75,9 +75,9 @@ def sha256(path: Path) -> str:
 
 
 RECORDED = {
-    "highway_traffic": "c423230a7403511c573fcecc46476c71a9b1aee6a0c7cc3b56c1f7a0edcdf5ee",
+    "highway_traffic": "647804bd057abb3a5fd3239da74bac55a5aefe93f8e43446700a027c03de7f26",
     "highway_paper": "357ab8c99315bc4115ad846f45422bc7474499c6b7343aee7b6a177dba96291a",
-    "share_lanedrop": "38a4921f2bf729e66d96f92551e195b32a393a7b6f0939a5f6cee11283f6341f",
+    "share_lanedrop": "4ca82112af013b6005a304e3e19aebbd35b8f07bcf4f8a6812c3b83ee8918160",
 }
 """sha256 of each case's FCD (csv), recorded on the code before the driver became one object (the
 traffic case again when lane changes began to wait for an acceptable gap, and both traffic-driver
@@ -92,7 +92,8 @@ to want a 1 s lag behind and SUMO's cars to see agents' braking as their own, an
 when a car let in earned no shorter gap by being faster and SUMO's driver of an agent braked as a
 passenger car does, and again when a scenario's car made an agent got the agents' lcAccelLat, so
 that SUMO moves it sideways as the driver asks, and again when sensing began to follow a lane
-through a junction into the lane it leads into: a change of behaviour on purpose
+through a junction into the lane it leads into, and both traffic-driver cases when the car-following
+law began to stand 2.5 m behind a car, as SUMO's cars do: a change of behaviour on purpose
 is a new recording, in the same commit)."""
 
 
