@@ -319,7 +319,10 @@ def look_ahead(speed: np.ndarray, lateral: LaneDriving) -> np.ndarray:
 
 
 def gap_acceptable(
-    traffic: LaneTraffic, lateral: LaneDriving, merging: np.ndarray | None = None
+    traffic: LaneTraffic,
+    lateral: LaneDriving,
+    merging: np.ndarray | None = None,
+    lane_followers: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """[N, 2] bool: whether the fast-side (column 0) and slow-side (column 1) lane have room to
     change into, as a driver checks it: nobody alongside, and neither the new leader nor the new
@@ -330,23 +333,47 @@ def gap_acceptable(
     Gap 0 in `traffic`: alongside, or no lane. Where `merging` [N, 2] (a car whose lane ends,
     towards the side it leaves to), the car's own braking and the follower's lag are judged at
     `let_in_headway`, the gap it falls in to: by the full headway no gap behind a car beside it at
-    its own speed is ever room (the car stood at the end of a dropped lane)."""
+    its own speed is ever room (the car stood at the end of a dropped lane).
+
+    `lane_followers` ([N, 2] gap and speed, NaN where nobody; None: none) are the nearest followers
+    whose centres are in the fast-side and slow-side lane, held to the same terms: the follower
+    slots count a car in every lane its body overlaps, so a slow car just over the line behind hid
+    a fast one coming up in that lane (on `motorway4`, an agent moved out of a queue in front of a
+    car at 29 m/s, 50 m back, and was run into)."""
     t, law = traffic, lateral.following
     out = np.zeros((len(t.speed), 2), bool)
     courtesy = replace(law, time_headway=lateral.let_in_headway)
     leaving = np.zeros((len(t.speed), 2), bool) if merging is None else merging
-    for side, (lead, follow) in enumerate(((2, 3), (4, 5))):
-        own, theirs = t.lead_accel[:, side + 1], t.follower_accel[:, side]
+    for side, lead in enumerate((2, 4)):
+        own = t.lead_accel[:, side + 1]
         if leaving[:, side].any():
             behind = behind_leader(t.free, t.gap[:, lead], t.known_speed[:, lead], courtesy)
             own = np.where(leaving[:, side], behind, own)
-        out[:, side] = (t.gap[:, lead] > 0) & (t.gap[:, follow] > 0) & (own >= -lateral.safe_decel)
-        out[:, side] &= theirs >= -lateral.safe_decel
-        closing = np.maximum(t.known_speed[:, follow] - t.speed, 0.0)
-        lag = np.where(leaving[:, side], lateral.let_in_headway, lateral.lag_headway)
-        room = np.maximum(closing * lateral.change_time, lag * t.known_speed[:, follow])
-        out[:, side] &= t.gap[:, follow] > law.min_gap + room
+        out[:, side] = (t.gap[:, lead] > 0) & (own >= -lateral.safe_decel)
+    lag = np.where(leaving, lateral.let_in_headway, lateral.lag_headway)
+    out &= follower_room(t.speed, t.gap[:, [3, 5]], t.known_speed[:, [3, 5]], t.follower_accel, lag, lateral)
+    if lane_followers is not None:
+        gap, known = lane_followers[0], nan_as(lane_followers[1], 0.0)
+        theirs = new_follower_accel(t.speed, gap.T, known.T, law).T
+        out &= follower_room(t.speed, gap, known, theirs, lag, lateral)
     return out
+
+
+def follower_room(
+    speed: np.ndarray,
+    gap: np.ndarray,
+    follower_speed: np.ndarray,
+    follower_accel: np.ndarray,
+    lag: np.ndarray,
+    lateral: LaneDriving,
+) -> np.ndarray:
+    """[N, 2] bool: a new follower `gap` metres behind at `follower_speed` (0 where nobody), which
+    would brake at `follower_accel` for the car, leaves room for the change (`gap_acceptable`): no
+    harder braking than `safe_decel`, not alongside within `change_time`, not nearer than `lag` [N, 2]
+    seconds at its speed."""
+    closing = np.maximum(follower_speed - speed[:, None], 0.0)
+    room = np.maximum(closing * lateral.change_time, lag * follower_speed)
+    return (follower_accel >= -lateral.safe_decel) & (gap > lateral.following.min_gap + room)
 
 
 def lane_intent(
@@ -626,6 +653,7 @@ def actuate_lanes(
     habits: LaneHabits | None = None,
     far_fast_leader: tuple[np.ndarray, np.ndarray] | None = None,
     held_for: np.ndarray | None = None,
+    lane_followers: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> LaneCommand:
     """One control step of the traffic driver for all agents.
 
@@ -641,7 +669,9 @@ def actuate_lanes(
     `far_fast_leader` ([N] gap, [N] speed; None: none) is the nearest leader in a lane beyond the
     fast-side one, which is not passed on its slow side either; `held_for` [N] (None: 0) the
     seconds each car has been held up so far, which its habits' patience must reach before it
-    passes (the result carries it on). A car that wants more than the
+    passes (the result carries it on); `lane_followers` ([N, 2] gap, speed; None: none) the nearest
+    followers with their centres in the fast-side and slow-side lanes (`gap_acceptable`). A car that
+    wants more than the
     limit (`desired_speed` above `speed_limit`) drives at what it wants, as a share of real
     drivers and of SUMO's do.
     """
@@ -659,7 +689,7 @@ def actuate_lanes(
         # ends well before it (a weave's, an exit's)
         shorter = lane_leads_on[:, 1:] < lane_leads_on[:, :1] - lateral.shorter_lane_m
         lanes_go_on = (lane_leads_on[:, 1:] >= soon[:, None]) & (~shorter | leaving)
-    acceptable = gap_acceptable(traffic, lateral, leaving) & lanes_go_on
+    acceptable = gap_acceptable(traffic, lateral, leaving, lane_followers) & lanes_go_on
     free = slow_side_free(traffic, lateral, lane_leads_on) if lateral.keep_right else None
     if free is not None and habits is not None:
         free &= habits.keeps_right

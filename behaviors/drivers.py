@@ -337,6 +337,7 @@ class TrafficDriver:
             lanes.lanes - 1 - lanes.lane_number, lanes.lane_number, f.offset, f.half_width, f.speed_limit,
             fleet.dt, fleet.car, self.lateral, r.side_limit, r.speed_cap, lanes.lane_leads_on,
             f.on_normal_edge, self.habits(lanes), (around.far_fast_gap, around.far_fast_speed), own.held_for,
+            (around.lane_follower_gap, around.lane_follower_speed),
         )  # fmt: skip
         # a junction's internal edge holds only the lanes of some connections, not the
         # carriageway: the move stays clamped to it, but leaving it is not off the road

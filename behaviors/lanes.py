@@ -39,6 +39,8 @@ SEARCH_RADIUS = GAP_RANGE + OTHER_LENGTH
 
 NEIGHBOUR_SLOTS = ("leader", "follower", "fast_leader", "fast_follower", "slow_leader", "slow_follower")
 """Order of the six neighbours: own lane, the fast-side lane, the slow-side lane."""
+SLOTS_KEPT = 9
+"""The six, the nearest leader beyond the fast-side lane and two followers by their centres."""
 
 TRAFFIC_LAYOUT = (
     ("speed", 1),
@@ -108,6 +110,9 @@ class Surroundings:
     other_speed: np.ndarray  # [N, 6]
     far_fast_gap: np.ndarray  # [N]
     far_fast_speed: np.ndarray  # [N]
+    lane_follower_gap: np.ndarray  # [N, 2] the nearest follower whose centre is in the fast-side and
+    lane_follower_speed: np.ndarray  # [N, 2] slow-side lane (not observed: a car across the line
+    # nearer behind fills the follower slot and hides it, and a lane change must not)
 
     @property
     def lead_gap(self) -> np.ndarray:
@@ -248,8 +253,10 @@ def surroundings(
     neighbour search already made with at least SEARCH_RADIUS (one search serves the shield too).
     """
     n = len(agents.speed)
-    gap = np.full((n, 7), np.inf)  # NEIGHBOUR_SLOTS, then the nearest leader beyond the fast-side lane
-    other = np.full((n, 7), np.nan)
+    # NEIGHBOUR_SLOTS, the nearest leader beyond the fast-side lane, the nearest followers whose centres
+    # are in the fast-side and in the slow-side lane
+    gap = np.full((n, SLOTS_KEPT), np.inf)
+    other = np.full((n, SLOTS_KEPT), np.nan)
     if near is None:
         near = neighbours(agents.front, positions, SEARCH_RADIUS, exclude=agent_rows)
     q, m, dx, dy, _ = within(near, SEARCH_RADIUS)
@@ -264,7 +271,7 @@ def surroundings(
         slow_edge, fast_edge = lane_units - half, lane_units + half  # worked out once for all lanes
         behind = along < 0
         distance = np.abs(along) - OTHER_LENGTH
-        row_slot = q * 7 + behind  # + a lane's leader column: its leader, or the follower beside it
+        row_slot = q * SLOTS_KEPT + behind  # + a lane's leader column: its leader, or the follower beside it
         slots, pairs = [], []
         for side, column in ((0, 0), (1, 2), (-1, 4)):
             k = np.flatnonzero((fast_edge > side - 0.5) & (slow_edge < side + 0.5))
@@ -273,12 +280,17 @@ def surroundings(
         k = np.flatnonzero((slow_edge > 1.5) & ~behind)
         slots.append(row_slot[k] + 6)
         pairs.append(k)
+        for side, column in ((1, 7), (-1, 8)):
+            k = np.flatnonzero(behind & (np.abs(lane_units - side) < 0.5))
+            slots.append(q[k] * SLOTS_KEPT + column)
+            pairs.append(k)
         slot, pair = np.concatenate(slots), np.concatenate(pairs)
-        found, nearest = nearest_per_slot(n * 7, slot, distance[pair])
+        found, nearest = nearest_per_slot(n * SLOTS_KEPT, slot, distance[pair])
         gap.ravel()[found] = distance[pair[nearest]]
         other.ravel()[found] = speeds[m[pair[nearest]]]
     gap = np.maximum(gap, 0.0)
     far_gap, far_speed = gap[:, 6], other[:, 6]
+    behind_gap, behind_speed = gap[:, 7:], other[:, 7:]
     gap, other = gap[:, :6], other[:, :6]
     fast_missing = agents.lane_number >= agents.lanes - 1
     slow_missing = agents.lane_number <= 0
@@ -286,7 +298,7 @@ def surroundings(
     gap[slow_missing, 4:6] = 0.0
     other[fast_missing, 2:4] = np.nan
     other[slow_missing, 4:6] = np.nan
-    return Surroundings(gap, other, far_gap, far_speed)
+    return Surroundings(gap, other, far_gap, far_speed, behind_gap, behind_speed)
 
 
 def observe_lanes(agents: LaneAgents, around: Surroundings) -> np.ndarray:

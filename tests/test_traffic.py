@@ -390,6 +390,21 @@ def test_a_change_waits_for_a_gap_a_driver_would_take():
     assert waiting.changing[0] == 0 and waiting.actuation.lateral_move[0] == 0.0
 
 
+def test_a_slow_car_across_the_line_behind_does_not_hide_a_fast_one_in_the_lane():
+    """The follower slot holds the nearest car whose body reaches into the lane: a slow car just over
+    the line 18 m back. A car at 29 m/s 55 m back in that lane would be alongside within 5 s."""
+    agent = one_agent(speed=np.array([11.0]), desired_speed=np.array([30.0]))
+    positions = np.array([[0.0, 0.0], [-23.0, 1.0], [-60.0, 3.5]])  # the agent, the straddler, the fast car
+    around = surroundings(agent, positions, np.array([11.0, 12.0, 29.0]), np.array([0]), STRAIGHT)
+    assert around.gap[0, 3] == pytest.approx(18.0) and around.other_speed[0, 3] == 12.0  # the straddler
+    assert around.lane_follower_gap[0, 0] == pytest.approx(55.0) and around.lane_follower_speed[0, 0] == 29.0
+    ruled = LaneDriving()
+    traffic = lane_traffic(agent.speed, agent.desired_speed, around.gap, around.other_speed, ruled.following)
+    assert gap_acceptable(traffic, ruled)[0, 0]  # by the slots alone: room
+    followers = (around.lane_follower_gap, around.lane_follower_speed)
+    assert not gap_acceptable(traffic, ruled, lane_followers=followers)[0, 0]
+
+
 def test_no_lane_change_towards_a_side_without_a_lane():
     run = drive_lanes([1.0] * 30, lane=2)  # already in the fast lane of three
     assert set(run[:, 4]) == {0} and np.abs(run[:, 1]).max() < 1e-9
