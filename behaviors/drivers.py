@@ -294,7 +294,9 @@ class TrafficDriver:
         sumo_speed: np.ndarray,
     ):
         """Decide the hand-overs (handover.py) and update the rows as if they were sent: SUMO's
-        speed for the cars it drives, no sideways motion for those it gives back."""
+        speed for the cars it drives; those it gives back go on sideways as SUMO moved them (taken
+        back at no sideways speed, a car SUMO was moving over at 1 m/s stopped its sideways motion
+        within a step: a lane-change peak of 2 m/s^2)."""
         r, own = fleet.rows, fleet.rows.own
         signal = (
             sim.signal_ahead(r.ids, np.maximum(SIGNAL_DISTANCE, SIGNAL_SECONDS * r.speed))
@@ -309,8 +311,9 @@ class TrafficDriver:
             normal, half_room, signal, own.lateral_speed,  # 0 where SUMO drives (`actuate`)
         )  # fmt: skip
         if handover.take.any():
-            own.lateral_speed[handover.take] = 0.0
-            r.angle[handover.take] = 0.0
+            taken = np.flatnonzero(handover.take)
+            own.lateral_speed[taken] = sim.read_lateral_speeds([r.ids[i] for i in taken])
+            r.angle[taken] = np.arctan2(own.lateral_speed[taken], np.maximum(r.speed[taken], 1e-6))
         r.handed = (r.handed | handover.give) & ~handover.take
         r.speed = np.where(r.handed, sumo_speed, r.speed)  # SUMO drives them: their speed is SUMO's
         return handover

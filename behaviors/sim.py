@@ -333,6 +333,10 @@ class SumoSim:
     def read_speeds(self, ids: Sequence[str]) -> np.ndarray:
         return np.fromiter(map(self._fast.getSpeed, ids), float, len(ids))
 
+    def read_lateral_speeds(self, ids: Sequence[str]) -> np.ndarray:
+        """Sideways speed in the last step, m/s, signed as `posLat` (+ towards higher lane indices)."""
+        return np.fromiter(map(self._sumo.vehicle.getLateralSpeed, ids), float, len(ids))
+
     def take_control(self, ids: Sequence[str]) -> None:
         """Speed mode 0 and lane-change mode 0: SUMO applies no safety, the policy drives."""
         v = self._sumo.vehicle

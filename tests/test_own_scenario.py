@@ -324,3 +324,4 @@ def test_a_scenario_car_made_an_agent_moves_sideways_exactly_as_asked(tmp_path):
             sim.command_agents(cars, sim.read_speeds(cars), asked)
             sim.step()
             assert np.allclose(sim.read_lane_places(cars)[1] - before, asked, atol=1e-6)
+            assert np.allclose(sim.read_lateral_speeds(cars), asked / 0.5, atol=1e-6)  # signed as posLat
