@@ -352,10 +352,12 @@ def gap_acceptable(
         out[:, side] = (t.gap[:, lead] > 0) & (own >= -lateral.safe_decel)
     lag = np.where(leaving, lateral.let_in_headway, lateral.lag_headway)
     out &= follower_room(t.speed, t.gap[:, [3, 5]], t.known_speed[:, [3, 5]], t.follower_accel, lag, lateral)
-    if lane_followers is not None:
-        gap, known = lane_followers[0], nan_as(lane_followers[1], 0.0)
-        theirs = new_follower_accel(t.speed, gap.T, known.T, law).T
-        out &= follower_room(t.speed, gap, known, theirs, lag, lateral)
+    if lane_followers is not None:  # where the slots hold another, nearer car than these
+        hidden = np.flatnonzero((lane_followers[0] != t.gap[:, [3, 5]]).any(axis=1))
+        if len(hidden):
+            gap, known = lane_followers[0][hidden], nan_as(lane_followers[1][hidden], 0.0)
+            theirs = new_follower_accel(t.speed[hidden], gap.T, known.T, law).T
+            out[hidden] &= follower_room(t.speed[hidden], gap, known, theirs, lag[hidden], lateral)
     return out
 
 

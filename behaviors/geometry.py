@@ -48,6 +48,15 @@ _LANE_GAP = 1.0e6
 """Spacing between lanes in the concatenated lane-position axis (keeps lanes apart)."""
 
 
+NEXT_LANES_SEEN = 3
+"""Lanes sensing follows beyond a car's own lane's end (`RoadGeometry.lane_next`): an edge's end, a
+junction's lane and the next edge cover the sensors' range but on the shortest edges."""
+NEXT_LANES_REACH = 160.0
+"""m beyond a lane's end within which its continuation is compared with the line its end points along
+(the lane sensors' reach)."""
+NEXT_LANE_TOLERANCE = 0.2
+"""m: a continuation that leaves that line by more is followed lane by lane (`lane_next_departs`)."""
+
 CACHE_VERSION = 3
 """Bumped whenever what the geometry cache holds changes: older caches are rebuilt."""
 
@@ -197,6 +206,35 @@ class RoadGeometry:
         start = self.axis_s[i] - self.axis_s[lo]
         return LanePose(a + t[:, None] * d, angle, curvature, pos, length, start, start + span)
 
+    @functools.cached_property
+    def lane_next_departs(self) -> np.ndarray:
+        """[L] bool: within NEXT_LANES_REACH of a lane's end, the lanes it leads into (`lane_next`, up
+        to NEXT_LANES_SEEN of them) leave the line its end points along, bending with its end's
+        curvature, by more than NEXT_LANE_TOLERANCE: a lane shifted sideways through a junction.
+        Sensing follows the lanes only there; elsewhere (most edges' ends) that line places the cars
+        ahead as well, and following the lanes cost populate at 1,000 agents 0.8 ms a step."""
+        out = np.zeros(len(self.lane_next), bool)
+        rows = np.flatnonzero(self.lane_next >= 0)
+        if not len(rows):
+            return out
+        end = self.lane_pose(rows, self.lane_shape_length[rows])
+        for k, row in enumerate(rows.tolist()):
+            points, reached, lane = [], 0.0, row
+            for _ in range(NEXT_LANES_SEEN):
+                lane = int(self.lane_next[lane])
+                if lane < 0 or reached >= NEXT_LANES_REACH:
+                    break
+                length = float(self.lane_shape_length[lane])
+                at = np.append(np.arange(0.0, min(length, NEXT_LANES_REACH - reached), 5.0), length)
+                points.append(self.lane_pose(np.full(len(at), lane), at, with_curvature=False).point)
+                reached += length
+            offset = np.concatenate(points) - end.point[k]
+            heading, curvature = np.full(len(offset), end.angle[k]), np.full(len(offset), end.curvature[k])
+            ahead, across = road_coordinates(offset[:, 0], offset[:, 1], heading, curvature)
+            near = ahead <= NEXT_LANES_REACH
+            out[row] = bool(near.any() and np.abs(across[near]).max() > NEXT_LANE_TOLERANCE)
+        return out
+
     def _segments(
         self, i: np.ndarray, last: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -237,6 +275,28 @@ class RoadGeometry:
         start = self.cell_start[row]
         count = np.where(self.cell_keys[row] == keys, self.cell_start[row + 1] - start, 0)
         return np.repeat(np.arange(len(points)), count), self.cell_segments[ranges(start, count)]
+
+
+def road_coordinates(
+    dx: np.ndarray, dy: np.ndarray, heading: np.ndarray, curvature: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(along, across) of world offsets in a road frame that bends with constant curvature.
+
+    `across` is + to the geometric left. On a straight road this is a rotation; on a curve
+    the offsets are taken about the curve's centre, so a car in the next lane 100 m round a
+    200 m-radius bend is still one lane over, not 25 m to the side.
+    """
+    c, s = np.cos(heading), np.sin(heading)
+    a = dx * c + dy * s  # ahead
+    b = -dx * s + dy * c  # left
+    bent = np.abs(curvature) > 1e-6
+    k = np.where(bent, curvature, 1.0)
+    radius = 1.0 / k  # signed: + = centre on the left
+    sign = np.sign(radius)
+    r = np.hypot(a, b - radius)
+    along = np.where(bent, np.arctan2(a, sign * (radius - b)) * np.abs(radius), a)
+    across = np.where(bent, radius - sign * r, b)
+    return along, across
 
 
 def heading_sector(heading: np.ndarray) -> np.ndarray:

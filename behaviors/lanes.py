@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviors.actuation import nan_as
-from behaviors.geometry import RoadGeometry
+from behaviors.geometry import NEXT_LANES_SEEN, RoadGeometry, road_coordinates
 from behaviors.sensors import Neighbours, nearest_per_slot, neighbours, within
 
 SPEED_SCALE = 40.0
@@ -123,28 +123,6 @@ class Surroundings:
         return self.other_speed[:, 0]
 
 
-def road_coordinates(
-    dx: np.ndarray, dy: np.ndarray, heading: np.ndarray, curvature: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """(along, across) of world offsets in a road frame that bends with constant curvature.
-
-    `across` is + to the geometric left. On a straight road this is a rotation; on a curve
-    the offsets are taken about the curve's centre, so a car in the next lane 100 m round a
-    200 m-radius bend is still one lane over, not 25 m to the side.
-    """
-    c, s = np.cos(heading), np.sin(heading)
-    a = dx * c + dy * s  # ahead
-    b = -dx * s + dy * c  # left
-    bent = np.abs(curvature) > 1e-6
-    k = np.where(bent, curvature, 1.0)
-    radius = 1.0 / k  # signed: + = centre on the left
-    sign = np.sign(radius)
-    r = np.hypot(a, b - radius)
-    along = np.where(bent, np.arctan2(a, sign * (radius - b)) * np.abs(radius), a)
-    across = np.where(bent, radius - sign * r, b)
-    return along, across
-
-
 def lane_coordinates(
     geometry: RoadGeometry,
     lane_row: np.ndarray,
@@ -183,7 +161,7 @@ def lane_coordinates(
             k = np.flatnonzero(beyond)
             own, target = pairs[k], front[pairs[k]] + offset[k]
             along[k], across[k] = _project(geometry, lane_row[own], shape_pos[own], target, along[k])
-    leads_into = geometry.lane_next[lane_row] >= 0
+    leads_into = geometry.lane_next_departs[lane_row]
     if leads_into.any():
         to_end = geometry.lane_shape_length[lane_row] - shape_pos
         past = np.flatnonzero(leads_into[pairs] & (along > to_end[pairs]))
@@ -193,11 +171,6 @@ def lane_coordinates(
                 geometry, lane_row[pairs[past]], to_end[pairs[past]], target, along[past]
             )
     return along, across
-
-
-NEXT_LANES_SEEN = 3
-"""Lanes followed beyond a car's own lane's end: an edge's end, a junction's lane and the next edge
-cover GAP_RANGE but on the shortest edges."""
 
 
 def _along_next_lanes(
@@ -280,10 +253,9 @@ def surroundings(
         k = np.flatnonzero((slow_edge > 1.5) & ~behind)
         slots.append(row_slot[k] + 6)
         pairs.append(k)
-        for side, column in ((1, 7), (-1, 8)):
-            k = np.flatnonzero(behind & (np.abs(lane_units - side) < 0.5))
-            slots.append(q[k] * SLOTS_KEPT + column)
-            pairs.append(k)
+        beside = np.flatnonzero(behind & (np.abs(lane_units) > 0.5) & (np.abs(lane_units) < 1.5))
+        slots.append(q[beside] * SLOTS_KEPT + np.where(lane_units[beside] > 0, 7, 8))
+        pairs.append(beside)
         slot, pair = np.concatenate(slots), np.concatenate(pairs)
         found, nearest = nearest_per_slot(n * SLOTS_KEPT, slot, distance[pair])
         gap.ravel()[found] = distance[pair[nearest]]

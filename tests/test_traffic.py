@@ -256,9 +256,12 @@ def shifting_junction(linked: bool) -> RoadGeometry:
     """Two 3.5 m lanes along +x to x = 300, a 20 m junction, and two lanes on, the lane ahead of the
     left one (a_1) one lane further right: a_1 leads into b_0, as at a lane drop's merge."""
     a = [(f"a_{k}", [(0.0, 3.5 * k), (300.0, 3.5 * k)], 3.5, 33.3, 300.0) for k in range(2)]
-    via = [(":j_0", [(300.0, 3.5), (320.0, 0.0)], 3.5, 33.3, 20.3)]
+    via = [
+        (":j_0", [(300.0, 3.5), (320.0, 0.0)], 3.5, 33.3, 20.3),
+        (":j_1", [(300.0, 0.0), (320.0, 0.0)], 3.5, 33.3, 20.0),
+    ]
     b = [(f"b_{k}", [(320.0, 3.5 * k), (800.0, 3.5 * k)], 3.5, 33.3, 480.0) for k in range(2)]
-    lane_links = [("a_1", ":j_0"), (":j_0", "b_0")] if linked else []
+    lane_links = [("a_1", ":j_0"), (":j_0", "b_0"), ("a_0", ":j_1"), (":j_1", "b_0")] if linked else []
     edges = [("a", a, True), (":j", via, False), ("b", b, True)]
     return build_geometry(edges, [("a", "b")], car_links=[("a", "b")], lane_links=lane_links)
 
@@ -276,7 +279,9 @@ def test_a_car_ahead_beyond_a_junction_is_placed_in_the_lane_its_own_lane_leads_
     positions = np.array([[250.0, 3.5], [380.0, 0.0], [380.0, 3.5]])
     around = surroundings(agent, positions, np.array([30.0, 5.0, 30.0]), np.array([0]), road)
     through_junction = 50.0 + np.hypot(20.0, 3.5) + 60.0 - 5.0
-    if linked:
+    if linked:  # a_1's continuation leaves its line; a_0's goes on along it (the line serves there)
+        departs = road.lane_next_departs
+        assert departs[road.lane_index["a_1"]] and not departs[road.lane_index["a_0"]]
         assert around.gap[0, 0] == pytest.approx(through_junction, abs=0.5)
         assert around.other_speed[0, 0] == 5.0
         inside = one_agent(
