@@ -207,33 +207,40 @@ class RoadGeometry:
         return LanePose(a + t[:, None] * d, angle, curvature, pos, length, start, start + span)
 
     @functools.cached_property
-    def lane_next_departs(self) -> np.ndarray:
-        """[L] bool: within NEXT_LANES_REACH of a lane's end, the lanes it leads into (`lane_next`, up
-        to NEXT_LANES_SEEN of them) leave the line its end points along, bending with its end's
-        curvature, by more than NEXT_LANE_TOLERANCE: a lane shifted sideways through a junction.
-        Sensing follows the lanes only there; elsewhere (most edges' ends) that line places the cars
-        ahead as well, and following the lanes cost populate at 1,000 agents 0.8 ms a step."""
-        out = np.zeros(len(self.lane_next), bool)
-        rows = np.flatnonzero(self.lane_next >= 0)
-        if not len(rows):
-            return out
-        end = self.lane_pose(rows, self.lane_shape_length[rows])
-        for k, row in enumerate(rows.tolist()):
-            points, reached, lane = [], 0.0, row
-            for _ in range(NEXT_LANES_SEEN):
-                lane = int(self.lane_next[lane])
-                if lane < 0 or reached >= NEXT_LANES_REACH:
-                    break
-                length = float(self.lane_shape_length[lane])
-                at = np.append(np.arange(0.0, min(length, NEXT_LANES_REACH - reached), 5.0), length)
-                points.append(self.lane_pose(np.full(len(at), lane), at, with_curvature=False).point)
-                reached += length
-            offset = np.concatenate(points) - end.point[k]
-            heading, curvature = np.full(len(offset), end.angle[k]), np.full(len(offset), end.curvature[k])
-            ahead, across = road_coordinates(offset[:, 0], offset[:, 1], heading, curvature)
-            near = ahead <= NEXT_LANES_REACH
-            out[row] = bool(near.any() and np.abs(across[near]).max() > NEXT_LANE_TOLERANCE)
-        return out
+    def _next_departs(self) -> np.ndarray:
+        """[L] `lane_next_departs` as far as worked out: 1 yes, 0 no, -1 not yet."""
+        return np.where(self.lane_next >= 0, -1, 0).astype(np.int8)
+
+    def lane_next_departs(self, rows: np.ndarray) -> np.ndarray:
+        """[K] bool for lane `rows`: within NEXT_LANES_REACH of the lane's end, the lanes it leads into
+        (`lane_next`, up to NEXT_LANES_SEEN of them) leave the line its end points along, bending
+        with its end's curvature, by more than NEXT_LANE_TOLERANCE: a lane shifted sideways through a
+        junction. Sensing follows the lanes only there; elsewhere (most edges' ends) that line places
+        the cars ahead as well, and following the lanes cost populate at 1,000 agents 0.8 ms a step.
+        Worked out for a lane the first time it is asked for: a region's net has tens of thousands
+        of junction lanes, at some 70 us each."""
+        known = self._next_departs
+        for row in np.unique(rows[known[rows] < 0]).tolist():
+            known[row] = self._departs_from(row)
+        return known[rows] == 1
+
+    def _departs_from(self, row: int) -> bool:
+        """`lane_next_departs` of one lane."""
+        end = self.lane_pose(np.array([row]), self.lane_shape_length[[row]])
+        points, reached, lane = [], 0.0, row
+        for _ in range(NEXT_LANES_SEEN):
+            lane = int(self.lane_next[lane])
+            if lane < 0 or reached >= NEXT_LANES_REACH:
+                break
+            length = float(self.lane_shape_length[lane])
+            at = np.append(np.arange(0.0, min(length, NEXT_LANES_REACH - reached), 5.0), length)
+            points.append(self.lane_pose(np.full(len(at), lane), at, with_curvature=False).point)
+            reached += length
+        offset = np.concatenate(points) - end.point[0]
+        heading, curvature = np.full(len(offset), end.angle[0]), np.full(len(offset), end.curvature[0])
+        ahead, across = road_coordinates(offset[:, 0], offset[:, 1], heading, curvature)
+        near = ahead <= NEXT_LANES_REACH
+        return bool(near.any() and np.abs(across[near]).max() > NEXT_LANE_TOLERANCE)
 
     def _segments(
         self, i: np.ndarray, last: np.ndarray

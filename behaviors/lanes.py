@@ -161,7 +161,7 @@ def lane_coordinates(
             k = np.flatnonzero(beyond)
             own, target = pairs[k], front[pairs[k]] + offset[k]
             along[k], across[k] = _project(geometry, lane_row[own], shape_pos[own], target, along[k])
-    leads_into = geometry.lane_next_departs[lane_row]
+    leads_into = geometry.lane_next_departs(lane_row)
     if leads_into.any():
         to_end = geometry.lane_shape_length[lane_row] - shape_pos
         past = np.flatnonzero(leads_into[pairs] & (along > to_end[pairs]))

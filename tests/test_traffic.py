@@ -280,8 +280,8 @@ def test_a_car_ahead_beyond_a_junction_is_placed_in_the_lane_its_own_lane_leads_
     around = surroundings(agent, positions, np.array([30.0, 5.0, 30.0]), np.array([0]), road)
     through_junction = 50.0 + np.hypot(20.0, 3.5) + 60.0 - 5.0
     if linked:  # a_1's continuation leaves its line; a_0's goes on along it (the line serves there)
-        departs = road.lane_next_departs
-        assert departs[road.lane_index["a_1"]] and not departs[road.lane_index["a_0"]]
+        departs = road.lane_next_departs(np.array([road.lane_index["a_1"], road.lane_index["a_0"]]))
+        assert departs.tolist() == [True, False]
         assert around.gap[0, 0] == pytest.approx(through_junction, abs=0.5)
         assert around.other_speed[0, 0] == 5.0
         inside = one_agent(
