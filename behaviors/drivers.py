@@ -313,7 +313,8 @@ class TrafficDriver:
         if handover.take.any():
             taken = np.flatnonzero(handover.take)
             own.lateral_speed[taken] = sim.read_lateral_speeds([r.ids[i] for i in taken])
-            r.angle[taken] = np.arctan2(own.lateral_speed[taken], np.maximum(r.speed[taken], 1e-6))
+            # the heading as `actuate_lanes` gives it
+            r.angle[taken] = np.arctan2(own.lateral_speed[taken], np.maximum(r.speed[taken], 0.1))
         r.handed = (r.handed | handover.give) & ~handover.take
         r.speed = np.where(r.handed, sumo_speed, r.speed)  # SUMO drives them: their speed is SUMO's
         return handover

@@ -348,8 +348,8 @@ def load_geometry(
     if not any(is_normal and len(lanes) >= 2 for _, lanes, is_normal in tables.edges):
         raise BehaveError(f"network {path} has no multi-lane edge; behave needs at least one")
     say(f"building road geometry of {len(tables.edges):,} edges")
-    links, car_links, lane_links = sorted(tables.links), sorted(tables.car_links), sorted(tables.lane_next)
-    geometry = build_geometry(tables.edges, links, tables.lefthand, car_links, lane_links)
+    links, car_links, lane_next = sorted(tables.links), sorted(tables.car_links), sorted(tables.lane_next)
+    geometry = build_geometry(tables.edges, links, tables.lefthand, car_links, lane_next)
     if cache and stat.st_size >= CACHE_MIN_BYTES:
         with contextlib.suppress(BehaveError):
             write_cache(cached, key, geometry)
@@ -417,7 +417,7 @@ def build_geometry(
     links: Sequence[tuple[str, str]] = (),
     lefthand: bool = False,
     car_links: Sequence[tuple[str, str]] = (),
-    lane_links: Sequence[tuple[str, str]] = (),
+    lane_next: Sequence[tuple[str, str]] = (),
 ) -> RoadGeometry:
     """Geometry from plain edge/lane data (car lanes ordered as SUMO numbers them, lane 0 outermost).
 
@@ -454,7 +454,7 @@ def build_geometry(
         seg_a=a[keep],
         seg_b=b[keep],
         lane_index=lane_index,
-        lane_next=next_lanes(lane_index, lane_links),
+        lane_next=next_lanes(lane_index, lane_next),
         lane_edge=[edge_id for edge_id, lanes, _ in edges for _ in lanes],
         lane_number=np.concatenate([np.arange(len(lanes)) for _, lanes, _ in edges]).astype(np.int64),
         lane_num_lanes=np.repeat(
@@ -472,12 +472,12 @@ def build_geometry(
     )
 
 
-def next_lanes(lane_index: dict[str, int], lane_links: Sequence[tuple[str, str]]) -> np.ndarray:
-    """[L] the row of each lane's one successor among `lane_links` (lane id pairs), -1 where it has
-    none or several (where lanes part, which one a car takes is its route's)."""
+def next_lanes(lane_index: dict[str, int], lane_next: Sequence[tuple[str, str]]) -> np.ndarray:
+    """[L] the row of each lane's one successor among `lane_next` (lane id pairs, `NetTables.lane_next`),
+    -1 where it has none or several (where lanes part, which one a car takes is its route's)."""
     out = np.full(len(lane_index), -1, np.int64)
     count = np.zeros(len(lane_index), np.int64)
-    for src, dst in lane_links:
+    for src, dst in lane_next:
         if src in lane_index and dst in lane_index:
             out[lane_index[src]] = lane_index[dst]
             count[lane_index[src]] += 1

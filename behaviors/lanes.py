@@ -111,8 +111,9 @@ class Surroundings:
     far_fast_gap: np.ndarray  # [N]
     far_fast_speed: np.ndarray  # [N]
     lane_follower_gap: np.ndarray  # [N, 2] the nearest follower whose centre is in the fast-side and
-    lane_follower_speed: np.ndarray  # [N, 2] slow-side lane (not observed: a car across the line
-    # nearer behind fills the follower slot and hides it, and a lane change must not)
+    lane_follower_speed: np.ndarray  # [N, 2] slow-side lane, as the slots where there is no lane (not
+    # observed: a car across the line nearer behind fills the follower slot and hides it, and a lane
+    # change must not)
 
     @property
     def lead_gap(self) -> np.ndarray:
@@ -266,10 +267,9 @@ def surroundings(
     gap, other = gap[:, :6], other[:, :6]
     fast_missing = agents.lane_number >= agents.lanes - 1
     slow_missing = agents.lane_number <= 0
-    gap[fast_missing, 2:4] = 0.0
-    gap[slow_missing, 4:6] = 0.0
-    other[fast_missing, 2:4] = np.nan
-    other[slow_missing, 4:6] = np.nan
+    for missing, columns, follower in ((fast_missing, slice(2, 4), 0), (slow_missing, slice(4, 6), 1)):
+        gap[missing, columns], other[missing, columns] = 0.0, np.nan
+        behind_gap[missing, follower], behind_speed[missing, follower] = 0.0, np.nan
     return Surroundings(gap, other, far_gap, far_speed, behind_gap, behind_speed)
 
 

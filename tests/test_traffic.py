@@ -261,9 +261,9 @@ def shifting_junction(linked: bool) -> RoadGeometry:
         (":j_1", [(300.0, 0.0), (320.0, 0.0)], 3.5, 33.3, 20.0),
     ]
     b = [(f"b_{k}", [(320.0, 3.5 * k), (800.0, 3.5 * k)], 3.5, 33.3, 480.0) for k in range(2)]
-    lane_links = [("a_1", ":j_0"), (":j_0", "b_0"), ("a_0", ":j_1"), (":j_1", "b_0")] if linked else []
+    lane_next = [("a_1", ":j_0"), (":j_0", "b_0"), ("a_0", ":j_1"), (":j_1", "b_0")] if linked else []
     edges = [("a", a, True), (":j", via, False), ("b", b, True)]
-    return build_geometry(edges, [("a", "b")], car_links=[("a", "b")], lane_links=lane_links)
+    return build_geometry(edges, [("a", "b")], car_links=[("a", "b")], lane_next=lane_next)
 
 
 @pytest.mark.parametrize("linked", [True, False])
