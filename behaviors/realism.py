@@ -77,6 +77,8 @@ class Lanes:
     )  # lane id -> index among car lanes, from the outer side
     lefthand: bool = False
     from_net: bool = False
+    next_lanes: dict[str, frozenset[str]] = field(default_factory=dict)
+    """Normal lane id -> the normal lanes its connections lead into (a lane that ends: none)."""
 
 
 def read_lanes(net: Path) -> Lanes:
@@ -96,6 +98,7 @@ def read_lanes(net: Path) -> Lanes:
     centre: dict[str, float] = {}
     width: dict[str, float] = {}
     rank: dict[str, int] = {}
+    next_lanes: dict[str, set[str]] = {}
     lefthand, root = False, False
     try:
         for elem in net_elements(net):
@@ -103,13 +106,17 @@ def read_lanes(net: Path) -> Lanes:
                 root, lefthand = True, elem.get("lefthand") == "true"
             elif elem.tag == "edge" and root and elem.get("function", "") in EDGE_FUNCTIONS:
                 _add_edge(elem, centre, width, rank, DEFAULT_LANE_WIDTH)
+            elif elem.tag == "connection" and root and not elem.get("from", ":").startswith(":"):
+                lane_id = f"{elem.get('from')}_{elem.get('fromLane')}"
+                next_lanes.setdefault(lane_id, set()).add(f"{elem.get('to')}_{elem.get('toLane')}")
     except (ET.ParseError, ValueError, KeyError, OSError, EOFError, gzip.BadGzipFile, zlib.error) as err:
         raise BehaveError(f"{net} is not a SUMO net ({err})") from None
     if not root:
         raise BehaveError(f"{net} is not a SUMO net (its root element is not <net>)")
     if not centre:
         raise BehaveError(f"{net} is not a SUMO net (no lanes)")
-    return Lanes(centre, width, rank, lefthand, from_net=True)
+    normal = {lane: frozenset(next_lanes.get(lane, ())) for lane in centre if not lane.startswith(":")}
+    return Lanes(centre, width, rank, lefthand, from_net=True, next_lanes=normal)
 
 
 EDGE_FUNCTIONS = ("", "internal", "crossing", "walkingarea")
@@ -184,7 +191,7 @@ def prepare(
     from the outer border; `pos_lat` the offset from the lane centre (NaN if the FCD has no
     posLat); `track` a lateral position continuous across edges (`_track`);
     `road_edge`/`road_rank` carry the last normal lane through junctions; `settled` is false
-    during a car's first `skip_s`.
+    during a car's first `skip_s`; `lane_id` the lane's name.
     """
     missing = [c for c in REQUIRED if c not in df.columns or df[c].isna().all()]
     if missing:
@@ -206,7 +213,8 @@ def prepare(
     dt[gap] = np.nan
 
     lane, lane_ids = _per_unique(df["lane"])
-    layout = _lane_layout(pd.Index(lane_ids.astype(str)), lanes).iloc[lane]
+    lane_names = pd.Index(lane_ids.astype(str))
+    layout = _lane_layout(lane_names, lanes).iloc[lane]
     internal, rank = layout["internal"].to_numpy(), layout["rank"].to_numpy()
     edge = layout["edge"].to_numpy()
     offset = df["posLat"].to_numpy(float) if "posLat" in df.columns else np.full(len(df), np.nan)
@@ -223,6 +231,7 @@ def prepare(
         "road_edge": pd.Series(np.where(internal, np.nan, edge)).groupby(by_vehicle).ffill().to_numpy(),
         "road_rank": pd.Series(np.where(internal, np.nan, rank)).groupby(by_vehicle).ffill().to_numpy(),
         "settled": time - time[first][np.cumsum(new) - 1] >= skip_s,
+        "lane_id": pd.Categorical.from_codes(lane, categories=lane_names),
         "group": group[vehicle], "length": length[vehicle],
     })  # fmt: skip
     out.attrs["step"] = step
@@ -300,9 +309,12 @@ def _sideways_runs(tr: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     return moving, np.cumsum(run_start) - 1
 
 
-def lane_changes(tr: pd.DataFrame, accel: np.ndarray) -> pd.DataFrame:
+def lane_changes(
+    tr: pd.DataFrame, accel: np.ndarray, next_lanes: Mapping[str, frozenset[str]] | None = None
+) -> pd.DataFrame:
     """One row per lane change of a settled car (its lane rank changes between two records on
-    the same edge), with its duration, peak |lateral acceleration| and sideways run.
+    the same edge), with its duration, peak |lateral acceleration|, sideways run, and whether the
+    route asked for it (`route_asked`).
 
     The duration is the run of records moving sideways (faster than SIDEWAYS_SPEED) towards the
     new lane, from the record before the run to its last record; the peak is over that run.
@@ -325,10 +337,52 @@ def lane_changes(tr: pd.DataFrame, accel: np.ndarray) -> pd.DataFrame:
     runs = run[idx]
     return pd.DataFrame({
         "group": tr["group"].to_numpy()[idx],
+        "route": route_asked(tr, idx, next_lanes or {}),
         "duration": np.where(along, time[ends[runs]] - begin[runs], np.nan),
         "peak_accel": np.where(along, peak[runs], np.nan),
         "run": np.where(along, runs, -1),
     })  # fmt: skip
+
+
+def route_asked(
+    tr: pd.DataFrame, changes: np.ndarray, next_lanes: Mapping[str, frozenset[str]]
+) -> np.ndarray:
+    """Per lane change (the record index where the car is first seen in the new lane): whether the
+    route asked for it, as a mandatory change: the lane left could not take the car, through the
+    net's connections, as far along the edges it drove on afterwards as the lane it moved into
+    (an acceleration lane, a dropped lane, a lane that leads only onto an exit, or onto the exit
+    it takes). False where the net's connections are not known."""
+    out = np.zeros(len(changes), bool)
+    if not len(changes) or not next_lanes:
+        return out
+    lane = tr["lane_id"].astype(str).to_numpy()
+    normal = np.flatnonzero(~tr["internal"].to_numpy())
+    seg = tr["seg"].to_numpy()[normal]
+    edge = np.array([name.rpartition("_")[0] for name in lane[normal]])
+    starts = np.r_[True, (edge[1:] != edge[:-1]) | (seg[1:] != seg[:-1])]
+    run_edge, run_seg = edge[starts], seg[starts]
+    run_of = np.full(len(tr), -1)
+    run_of[normal] = np.cumsum(starts) - 1
+    for k, i in enumerate(changes.tolist()):
+        left, run = lane[i - 1], run_of[i]
+        if left.startswith(":") or run < 0:
+            continue
+        end = run + 1
+        while end < len(run_seg) and run_seg[end] == run_seg[run]:
+            end += 1
+        route = list(run_edge[run + 1 : end])
+        out[k] = _reach(left, route, next_lanes) < _reach(lane[i], route, next_lanes)
+    return out
+
+
+def _reach(lane: str, route: list[str], next_lanes: Mapping[str, frozenset[str]]) -> int:
+    """How many edges of `route` a car in `lane` can drive on without changing lanes."""
+    current = {lane}
+    for count, edge in enumerate(route):
+        current = {n for c in current for n in next_lanes.get(c, ()) if n.rpartition("_")[0] == edge}
+        if not current:
+            return count
+    return len(route)
 
 
 def lane_offsets(tr: pd.DataFrame, changes: pd.DataFrame) -> pd.DataFrame:
@@ -493,6 +547,7 @@ METRICS = (
     Metric("vehicle_km", "vehicle-km (after each car's first seconds)"),
     Metric("mean_speed", "mean speed [m/s]"),
     Metric("lane_changes_per_km", "lane changes per vehicle-km", "0.12 (highD) - 0.22 (VTTI)"),
+    Metric("discretionary_lane_changes_per_km", "lane changes per vehicle-km the route did not ask for"),
     Metric("lane_changes_per_min", "lane changes per vehicle-minute"),
     Metric("lat_accel_over_limit", f"time with |lateral accel| > {LAT_ACCEL_LIMIT} m/s^2", "~0", share=True),
     Metric("lat_accel_p95", "|lateral accel| p95 [m/s^2]"),
@@ -572,7 +627,7 @@ def measure(
     by = live.groupby("group")
     km = (live["speed"] * live["dt"].fillna(0)).groupby(live["group"]).sum() / 1000
     minutes = live["dt"].fillna(0).groupby(live["group"]).sum() / 60
-    changes = lane_changes(tr, motion["accel"].to_numpy())
+    changes = lane_changes(tr, motion["accel"].to_numpy(), lanes.next_lanes)
     follow = headways(tr)
     made = passes(tr)
     offsets = lane_offsets(tr, changes)
@@ -582,6 +637,10 @@ def measure(
         "vehicle_km": km,
         "mean_speed": by["speed"].mean(),
         "lane_changes_per_km": n_changes / km.where(km > 0),
+        "discretionary_lane_changes_per_km": (
+            (~changes["route"]).groupby(changes["group"]).sum().reindex(km.index, fill_value=0)
+            / km.where((km > 0) & bool(lanes.next_lanes))
+        ),
         "lane_changes_per_min": n_changes / minutes.where(minutes > 0),
         "lat_accel_over_limit": by["accel"].apply(lambda a: (a.dropna() > LAT_ACCEL_LIMIT).mean()),
         "lat_accel_p95": by["accel"].quantile(0.95),
@@ -603,6 +662,8 @@ def measure(
     lane_use = lane_use.div(lane_use.sum(axis=1), axis=0).reindex(groups).T
     lane_use.index = [f"lane_{int(rank)}_share" for rank in lane_use.index]
     notes = [_lane_note(lanes), f"each car's first {skip_s:g} s left out"]
+    if not lanes.next_lanes:
+        notes.append("which lane changes the route asked for is unknown without the net's connections")
     if tr["pos_lat"].isna().all():
         notes.append("lane centring unknown: the FCD has no posLat")
     if agents is not None:

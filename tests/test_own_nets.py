@@ -16,6 +16,7 @@ from behaviors.agents_table import agents_path
 from behaviors.export import read_fcd
 from behaviors.geometry import load_geometry
 from behaviors.populate import config_from, populate
+from behaviors.realism import measure, read_lanes
 from sumo_scenarios.osm_like import build_osm_like
 
 DURATION = 100.0  # s: cars leaving in the first ~20 s reach the end of the exit ramp
@@ -37,6 +38,12 @@ def test_agents_drive_an_osm_like_net_and_leave_it_by_the_exit(tmp_path, name):
     assert len(out) >= 1 and (last_lane[out].str.rpartition("_")[0] == net.exit_edge).all()
     joined = agents.loc[agents["id"].str.startswith("joining."), "id"]
     assert (last_lane[joined].str.rpartition("_")[0] != net.ramp_edge).any()  # onto the motorway
+    # the report tells the lane changes a route asks for from the others: on carriageway2 cars come
+    # on through an acceleration lane that ends (on motorway3 every car departs in a lane that
+    # leads where it goes: the exit's cars stay in the lane that becomes the exit)
+    table = measure(read_fcd(fcd), read_lanes(net.net), skip_s=0).table
+    every, chosen = table.loc["lane_changes_per_km"], table.loc["discretionary_lane_changes_per_km"]
+    assert (chosen <= every).all() and (chosen < every).any() == (name == "carriageway2"), table
 
 
 def test_the_geometry_knows_the_lane_each_lane_leads_into(tmp_path):
@@ -53,3 +60,6 @@ def test_the_geometry_knows_the_lane_each_lane_leads_into(tmp_path):
     assert leads_into("m0_0") is None  # the dropped lane
     assert leads_into("m2_0") is None  # to the exit or on: the route's choice
     assert leads_into("m2_1") == ":n3_1_1" and leads_into(":n3_1_1") == "m3_1"
+    next_lanes = read_lanes(built.net).next_lanes  # the realism report's: normal lane -> normal lanes
+    assert next_lanes["m0_0"] == frozenset() and next_lanes["m0_1"] == {"m1_0"}
+    assert next_lanes["m2_0"] == {f"{built.exit_edge}_0", "m3_0"} and next_lanes["m2_1"] == {"m3_1"}

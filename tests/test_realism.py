@@ -126,6 +126,27 @@ def test_approach_without_pass_is_no_pass() -> None:
     assert passes(prepare(cars, Lanes(), skip_s=0)).empty
 
 
+@pytest.mark.parametrize(
+    ("lane_0_leads_into", "asked_by_route"), [(frozenset(), True), (frozenset({"f_0"}), False)]
+)
+def test_a_lane_change_out_of_a_lane_that_does_not_lead_on_is_the_routes(
+    lane_0_leads_into: frozenset[str], asked_by_route: bool
+) -> None:
+    """A car moves from lane 0 to lane 1 of edge e, then drives on through f and g: if lane 0 does
+    not lead on (an acceleration lane, a dropped lane) the route asked for the change."""
+    car = lane_change_car()
+    car = car.assign(lane=np.where(car["time"] < 25, car["lane"], np.where(car["time"] < 27, "f_1", "g_1")))
+    next_lanes = {"e_0": lane_0_leads_into, "e_1": frozenset({"f_1"}), "f_0": frozenset({"g_0"}),
+                  "f_1": frozenset({"g_1"}), "g_1": frozenset()}  # fmt: skip
+    table = measure(car, Lanes(next_lanes=next_lanes), skip_s=10).table["overtakers"]
+    assert table["lane_changes_per_km"] == pytest.approx(1 / 0.6, rel=0.02)
+    chosen = table["discretionary_lane_changes_per_km"]
+    assert chosen == (0 if asked_by_route else pytest.approx(1 / 0.6, rel=0.02))
+    without_net = measure(car, Lanes(), skip_s=10)
+    assert np.isnan(without_net.table.loc["discretionary_lane_changes_per_km", "overtakers"])
+    assert any("connections" in note for note in without_net.notes)
+
+
 def test_junction_lane_counts_as_the_lane_it_comes_from() -> None:
     """e_0 -> junction lane :J_0_0 -> f_1 (f gains a lane on the right): lane 0, then lane 1,
     no lane change, and the lateral track stays smooth although the offset jumps by a lane."""
