@@ -36,7 +36,7 @@ class Bar:
     name: str
     threshold: str
     value: Callable[[pd.DataFrame, dict], float]  # (report table, run facts) -> value
-    ok: Callable[[float], bool]
+    ok: Callable[[float], bool] | None  # None: a row shown beside the bars, not one
 
 
 def cell(table: pd.DataFrame, key: str, group: str) -> float:
@@ -70,6 +70,8 @@ RUN_BARS = (
 DRIVING_BARS = (
     Bar("keepers: lane changes per vehicle-km", "<= 0.15",
         lambda t, f: cell(t, "lane_changes_per_km", KEEPERS), lambda v: v <= 0.15),
+    Bar("... of them the route did not ask for (`behave report`; not a bar)", "",
+        lambda t, f: cell(t, "discretionary_lane_changes_per_km", KEEPERS), None),
     Bar("keepers: share of time in the rightmost lane", "<= 75%",
         lambda t, f: cell(t, "lane_0_share", KEEPERS), lambda v: v <= 0.75),
     Bar("overtakers: lane changes per vehicle-km", "<= 1",
@@ -127,7 +129,10 @@ def bars_table(bars: tuple[Bar, ...], columns: dict[str, tuple[pd.DataFrame, dic
     for bar in bars:
         values = [bar.value(table, facts) for table, facts in columns.values()]
         known = [v for v in values if not math.isnan(v)]
-        met = "yes" if known and all(bar.ok(v) for v in known) else ("-" if not known else "no")
+        if bar.ok is None:
+            met = ""
+        else:
+            met = "yes" if known and all(bar.ok(v) for v in known) else ("-" if not known else "no")
         lines.append(
             "| " + " | ".join([bar.name, bar.threshold, *(fmt(v, bar.threshold) for v in values), met]) + " |"
         )
