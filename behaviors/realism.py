@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,7 +58,8 @@ PASS_MARGIN = 10.0
 """m beyond a car length within which pairs are tracked for passes; widened to 25 m/s x step for
 coarse steps, so that no pass can jump over the window between two records."""
 GROUP_BY = ("type", "id-prefix")
-GROUPS_OF_TYPE = {"behave_keeper": "keepers", "behave_overtaker": "overtakers"}
+KEEPERS, OVERTAKERS = "keepers", "overtakers"
+GROUPS_OF_TYPE = {"behave_keeper": KEEPERS, "behave_overtaker": OVERTAKERS}
 OTHER_GROUP = "sumo"
 REQUIRED = ("id", "time", "lane", "pos", "speed")
 
@@ -438,7 +440,7 @@ def _neighbour_pairs(tr: pd.DataFrame, window: float) -> tuple[np.ndarray, np.nd
 
 
 def passes(tr: pd.DataFrame) -> pd.DataFrame:
-    """One row per pass made by a settled car, with the side it passed on.
+    """One row per pass made by a settled car (its group and vehicle code), with the side it passed on.
 
     A passes B when A's front goes from more than a car length (their mean length) behind B's
     front to more than a car length ahead while both stay on the same edge. The side is where
@@ -476,7 +478,10 @@ def passes(tr: pd.DataFrame) -> pd.DataFrame:
     passer = np.where(a_passed, a[cur], b[cur])
     settled = tr["settled"].to_numpy()[passer]
     side = np.where(a_passed, side_ab, -side_ab)[settled]
-    return pd.DataFrame({"group": tr["group"].to_numpy()[passer][settled], "overtaking_side": side > 0})
+    return pd.DataFrame({
+        "group": tr["group"].to_numpy()[passer][settled], "vehicle": vehicle[passer][settled],
+        "overtaking_side": side > 0,
+    })  # fmt: skip
 
 
 def read_agents(path: Path) -> pd.DataFrame | None:
@@ -590,6 +595,8 @@ class Report:
     samples: dict[str, dict[str, np.ndarray]]  # "thw", "accel", "speed" -> group -> values
     notes: tuple[str, ...]
     losses_known: bool  # a per-agent table was read: no figure means the group had no agents
+    like_for_like: dict[str, float] = field(default_factory=dict)
+    """overtakers / keepers on the trips both made (`like_for_like`); empty without both groups."""
 
 
 def check_options(skip_s: float, group_by: str) -> None:
@@ -679,7 +686,59 @@ def measure(
         "accel": _by_group(live.dropna(subset=["accel"]), "accel"),
         "speed": _by_group(live, "speed"),
     }
-    return Report(table.astype(float), metrics, samples, tuple(notes), agents is not None)
+    ratios = {}
+    if {OVERTAKERS, KEEPERS} <= set(groups):
+        ratios = like_for_like(live, made, trips(tr), OVERTAKERS, KEEPERS)
+        notes.append(
+            f"overtakers / keepers on the trips both made ({ratios['trips']:.0f}, first to last edge): "
+            f"mean speed {ratios['mean_speed']:.2f}x, passes per km {ratios['passes_per_km']:.2f}x"
+        )
+    return Report(table.astype(float), metrics, samples, tuple(notes), agents is not None, ratios)
+
+
+def trips(tr: pd.DataFrame) -> np.ndarray:
+    """Per vehicle code: its trip, the first and the last normal edge it was seen on (one number)."""
+    edge = pd.Series(tr["road_edge"].to_numpy()).groupby(tr["vehicle"].to_numpy())
+    first, last = edge.first(), edge.last()
+    n_edges = np.nanmax(tr["road_edge"].to_numpy(), initial=0) + 1
+    out = np.full(int(tr["vehicle"].max()) + 1, np.nan)
+    out[first.index.to_numpy()] = first.to_numpy() * n_edges + last.to_numpy()
+    return out
+
+
+def like_for_like(
+    live: pd.DataFrame, made: pd.DataFrame, trip: np.ndarray, over: str, under: str
+) -> dict[str, float]:
+    """`over` / `under` mean speed and passes per km with the mix of trips taken out: on each trip
+    (`trips`) both groups made, each group's value, the trips weighted by the two groups' time
+    (speed) or km (passes) on them. Which cars a share draws is chance: on a net with an exit, one
+    behaviour may draw more cars onto the slower ramp routes, and the pooled means compare routes
+    rather than behaviours. `trips`: how many trips both made (0: every ratio NaN)."""
+    trip_of = trip[live["vehicle"].to_numpy()]
+    on = live.assign(trip=trip_of, km=live["speed"] * live["dt"].fillna(0) / 1000)
+    by = on.groupby(["trip", "group"])
+    speed = by["speed"].mean().unstack()
+    time = by["dt"].sum().unstack()
+    km = by["km"].sum().unstack()
+    count = made.assign(trip=trip[made["vehicle"].to_numpy()]).groupby(["trip", "group"]).size()
+    rate = count.unstack().reindex(index=km.index, columns=km.columns).fillna(0) / km
+    if not {over, under} <= set(km.columns):
+        return {"trips": 0.0, "mean_speed": math.nan, "passes_per_km": math.nan}
+    shared = km.index[(km[over] > 0) & (km[under] > 0)]
+    if not len(shared):
+        return {"trips": 0.0, "mean_speed": math.nan, "passes_per_km": math.nan}
+
+    def weighted(values: pd.DataFrame, weights: pd.DataFrame) -> float:
+        w = weights.loc[shared, over] + weights.loc[shared, under]
+        top = float((w * values.loc[shared, over]).sum())
+        bottom = float((w * values.loc[shared, under]).sum())
+        return top / bottom if bottom > 0 else (math.inf if top > 0 else math.nan)
+
+    return {
+        "trips": float(len(shared)),
+        "mean_speed": weighted(speed, time),
+        "passes_per_km": weighted(rate, km),
+    }
 
 
 def _lane_note(lanes: Lanes) -> str:

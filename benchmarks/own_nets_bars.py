@@ -34,7 +34,7 @@ from traffic_bars import DRIVING_BARS, bars_table
 from behaviors.agents_table import LONG_STANDSTILL_S, STANDSTILL_SPEED, agents_path
 from behaviors.export import read_fcd
 from behaviors.populate import DEFAULT_POLICY, config_from, populate
-from behaviors.realism import measure, read_agents, read_lanes
+from behaviors.realism import Report, measure, read_agents, read_lanes
 from behaviors.sumo_home import sumo_home
 from sumo_scenarios.build import write_xml
 from sumo_scenarios.osm_like import OSM_LIKE_NAMES, build_osm_like
@@ -158,8 +158,8 @@ def facts_of(fcd: pd.DataFrame, agents: pd.DataFrame, summary, step: float, dura
     )
 
 
-def run(sumocfg: Path, seed: int, duration: float, fcd: Path, policy: Path) -> tuple[Facts, pd.DataFrame]:
-    """One run's facts and its realism report's table (groups keepers, overtakers, sumo)."""
+def run(sumocfg: Path, seed: int, duration: float, fcd: Path, policy: Path) -> tuple[Facts, Report]:
+    """One run's facts and its realism report (groups keepers, overtakers, sumo)."""
     config = config_from(
         sumocfg, share=SHARE, seed=seed, duration=duration, fcd=fcd, shield=False, policy=policy
     )
@@ -168,7 +168,7 @@ def run(sumocfg: Path, seed: int, duration: float, fcd: Path, policy: Path) -> t
     assert agents is not None  # populate writes it beside the FCD
     trace = read_fcd(fcd)
     report = measure(trace, read_lanes(config.net), agents=agents)
-    return facts_of(trace, agents, summary, config.step_length, duration), report.table
+    return facts_of(trace, agents, summary, config.step_length, duration), report
 
 
 @dataclass(frozen=True)
@@ -241,7 +241,7 @@ def main() -> None:
                 sumocfg, seed, args.duration, args.out / name / f"s{seed}" / "fcd.parquet", args.policy
             )
             columns[f"{name} s{seed}"] = facts
-            driving[f"{name} s{seed}"] = (report, {})
+            driving[f"{name} s{seed}"] = (report.table, {"like_for_like": report.like_for_like})
             print(f"{name} seed {seed}: {facts}", flush=True)
     text = table(columns)
     driving_text = bars_table(DRIVING_BARS, driving)

@@ -147,6 +147,25 @@ def test_a_lane_change_out_of_a_lane_that_does_not_lead_on_is_the_routes(
     assert any("connections" in note for note in without_net.notes)
 
 
+def test_behaviours_compared_on_the_trips_both_made() -> None:
+    """Keepers drive 30 m/s on trip b and 20 on a; overtakers 10% faster on each, but three of four
+    on the slow trip: pooled they look slower (0.9x), trip for trip they are 1.1x as fast."""
+    t = np.arange(0, 20, STEP)
+    cars = []
+    for k, (vtype, edge, speed) in enumerate(
+        [("behave_keeper", "b", 30.0)] * 3 + [("behave_keeper", "a", 20.0)]
+        + [("behave_overtaker", "a", 22.0)] * 3 + [("behave_overtaker", "b", 33.0)]
+    ):  # fmt: skip
+        cars.append(drive(f"c{k}", vtype, t, 2000.0 * k + speed * t, np.full(len(t), 1.6), speed, edge))
+    report = measure(pd.concat(cars), Lanes(), skip_s=0)
+    pooled = report.table.loc["mean_speed"]
+    assert pooled["overtakers"] / pooled["keepers"] == pytest.approx(0.9)
+    assert report.like_for_like["trips"] == 2
+    assert report.like_for_like["mean_speed"] == pytest.approx(1.1)
+    assert np.isnan(report.like_for_like["passes_per_km"])  # nobody passed anybody
+    assert any("trips both made" in note for note in report.notes)
+
+
 def test_junction_lane_counts_as_the_lane_it_comes_from() -> None:
     """e_0 -> junction lane :J_0_0 -> f_1 (f gains a lane on the right): lane 0, then lane 1,
     no lane change, and the lateral track stays smooth although the offset jumps by a lane."""
