@@ -690,7 +690,8 @@ def measure(
     if {OVERTAKERS, KEEPERS} <= set(groups):
         ratios = like_for_like(live, made, trips(tr), OVERTAKERS, KEEPERS)
         notes.append(
-            f"overtakers / keepers on the trips both made ({ratios['trips']:.0f}, first to last edge): "
+            f"overtakers / keepers on the trips both made ({ratios['trips']:.0f}, first to last edge; "
+            f"{100 * ratios['km_share']:.0f}% of their km): "
             f"mean speed {ratios['mean_speed']:.2f}x, passes per km {ratios['passes_per_km']:.2f}x"
         )
     return Report(table.astype(float), metrics, samples, tuple(notes), agents is not None, ratios)
@@ -713,7 +714,8 @@ def like_for_like(
     (`trips`) both groups made, each group's value, the trips weighted by the two groups' time
     (speed) or km (passes) on them. Which cars a share draws is chance: on a net with an exit, one
     behaviour may draw more cars onto the slower ramp routes, and the pooled means compare routes
-    rather than behaviours. `trips`: how many trips both made (0: every ratio NaN)."""
+    rather than behaviours. `trips`: how many trips both made (0: every ratio NaN); `km_share`: the
+    two groups' km on those trips, of all their km."""
     trip_of = trip[live["vehicle"].to_numpy()]
     on = live.assign(trip=trip_of, km=live["speed"] * live["dt"].fillna(0) / 1000)
     by = on.groupby(["trip", "group"])
@@ -723,10 +725,10 @@ def like_for_like(
     count = made.assign(trip=trip[made["vehicle"].to_numpy()]).groupby(["trip", "group"]).size()
     rate = count.unstack().reindex(index=km.index, columns=km.columns).fillna(0) / km
     if not {over, under} <= set(km.columns):
-        return {"trips": 0.0, "mean_speed": math.nan, "passes_per_km": math.nan}
+        return {"trips": 0.0, "km_share": 0.0, "mean_speed": math.nan, "passes_per_km": math.nan}
     shared = km.index[(km[over] > 0) & (km[under] > 0)]
     if not len(shared):
-        return {"trips": 0.0, "mean_speed": math.nan, "passes_per_km": math.nan}
+        return {"trips": 0.0, "km_share": 0.0, "mean_speed": math.nan, "passes_per_km": math.nan}
 
     def weighted(values: pd.DataFrame, weights: pd.DataFrame) -> float:
         w = weights.loc[shared, over] + weights.loc[shared, under]
@@ -734,8 +736,10 @@ def like_for_like(
         bottom = float((w * values.loc[shared, under]).sum())
         return top / bottom if bottom > 0 else (math.inf if top > 0 else math.nan)
 
+    both = km[[over, under]].fillna(0)
     return {
         "trips": float(len(shared)),
+        "km_share": float(both.loc[shared].to_numpy().sum() / both.to_numpy().sum()),
         "mean_speed": weighted(speed, time),
         "passes_per_km": weighted(rate, km),
     }

@@ -160,7 +160,7 @@ def test_behaviours_compared_on_the_trips_both_made() -> None:
     report = measure(pd.concat(cars), Lanes(), skip_s=0)
     pooled = report.table.loc["mean_speed"]
     assert pooled["overtakers"] / pooled["keepers"] == pytest.approx(0.9)
-    assert report.like_for_like["trips"] == 2
+    assert report.like_for_like["trips"] == 2 and report.like_for_like["km_share"] == 1
     assert report.like_for_like["mean_speed"] == pytest.approx(1.1)
     assert np.isnan(report.like_for_like["passes_per_km"])  # nobody passed anybody
     assert any("trips both made" in note for note in report.notes)
