@@ -26,7 +26,7 @@ import numpy as np
 
 from behaviors.errors import BehaveError
 from behaviors.sumo_home import sumo_binary
-from sumo_scenarios.build import AGENT_LC_ACCEL_LAT, PASSENGER_DECEL
+from sumo_scenarios.build import AGENT_LC_ACCEL_LAT, PASSENGER_DECEL, SUMO_LC_ACCEL_LAT, SUMO_MAX_SPEED_LAT
 
 COLLISION_OPTIONS = (
     "--collision.action",
@@ -360,8 +360,8 @@ class SumoSim:
             v.changeSublane(vid, 0.0)
             v.setSpeedMode(vid, SUMO_SPEED_MODE)
             v.setLaneChangeMode(vid, SUMO_LANE_CHANGE_MODE)
-            v.setParameter(vid, "laneChangeModel.lcAccelLat", "1.0")
-            v.setMaxSpeedLat(vid, 1.0)
+            v.setParameter(vid, "laneChangeModel.lcAccelLat", f"{SUMO_LC_ACCEL_LAT:g}")
+            v.setMaxSpeedLat(vid, SUMO_MAX_SPEED_LAT)
             v.setDecel(vid, PASSENGER_DECEL)  # as its vType shows followers (apparentDecel): no harder
 
     def take_back(self, ids: Sequence[str]) -> None:

@@ -209,6 +209,11 @@ the agents' car-following law stands as far behind a car (`actuation.CarFollowin
 AGENT_LC_ACCEL_LAT = 100.0
 """m/s^2: the agents' lcAccelLat, so large that SUMO's sublane model moves a car exactly as far
 sideways in one step as `changeSublane` asks (with SUMO's default of 1 it smooths the request)."""
+SUMO_LC_ACCEL_LAT = 1.0
+"""m/s^2: SUMO's default lcAccelLat, the lateral comfort an agent gets back while SUMO's driver has it
+(`SumoSim.hand_to_sumo`)."""
+SUMO_MAX_SPEED_LAT = 1.0
+"""m/s: SUMO's default maxSpeedLat, likewise."""
 
 
 def write_vtypes(path: Path) -> None:
