@@ -410,26 +410,27 @@ def test_a_slow_car_across_the_line_behind_does_not_hide_a_fast_one_in_the_lane(
     assert not gap_acceptable(traffic, ruled, lane_followers=followers)[0, 0]
 
 
-@pytest.mark.parametrize("offset", [1.26, 0.3])
-def test_a_car_reaching_over_a_line_keeps_behind_that_lanes_leader(offset):
+@pytest.mark.parametrize(
+    ("offset", "lateral_speed", "brakes"), [(1.26, 1.0, True), (0.3, 1.0, False), (1.26, -0.5, False)]
+)
+def test_a_car_reaching_over_a_line_keeps_behind_that_lanes_leader(offset, lateral_speed, brakes):
     """A change given up 0.5 m short of the line (steer 0, changing 0) leaves the car's body over it
     while its lateral speed comes down: it brakes for a car 3 m ahead in that lane, 4 m/s slower,
-    though its own lane is free. Centred (0.3 m off), the car beside-ahead is no leader of its own."""
+    though its own lane is free. Centred (0.3 m off), or moving back out of that lane (as a car that
+    has just passed into the next lane beside a slower one), it does not."""
     car, ruled = CarModel(), LaneDriving()
     gap, other = np.full((1, 6), np.inf), np.full((1, 6), np.nan)
     gap[0, 0], other[0, 0] = 17.0, 20.8  # the own lane's leader, faster
     gap[0, 2], other[0, 2] = 3.1, 15.0  # the fast-side lane's leader, just put down there
     gap[0, 4:] = 0.0  # no slow-side lane
     out = actuate_lanes(
-        np.array([[0.0, 0.5, 0.0]]), np.array([18.8]), np.array([30.0]), gap, other, np.array([1.0]),
-        np.array([0.0]), np.array([0]), np.array([offset]), np.array([3.5]), np.array([2]), np.array([0]),
-        np.array([offset - 3.5]), np.array([5.25]), np.array([33.3]), 0.2, car, ruled,
+        np.array([[0.0, 0.5, 0.0]]), np.array([18.8]), np.array([30.0]), gap, other,
+        np.array([lateral_speed]), np.array([0.0]), np.array([0]), np.array([offset]), np.array([3.5]),
+        np.array([2]), np.array([0]), np.array([offset - 3.5]), np.array([5.25]), np.array([33.3]), 0.2,
+        car, ruled,
     )  # fmt: skip
     braking = (out.actuation.speed[0] - 18.8) / 0.2
-    if offset > (3.5 - car.width) / 2:
-        assert braking < -3.0
-    else:
-        assert braking > 0.0
+    assert braking < -3.0 if brakes else braking > 0.0
 
 
 def test_no_lane_change_towards_a_side_without_a_lane():
