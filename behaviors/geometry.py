@@ -120,6 +120,12 @@ class RoadGeometry:
     lefthand: bool = False
 
     @functools.cached_property
+    def entry_edges(self) -> frozenset[str]:
+        """Normal edges no car connection leads onto: where SUMO puts a scenario's cars down."""
+        entered = {to for ahead in self.car_successors.values() for to in ahead}
+        return frozenset(e for e, info in self.edges.items() if info.normal and e not in entered)
+
+    @functools.cached_property
     def seg_za(self) -> np.ndarray:
         """seg_a as x + iy (car-frame transforms are one multiply)."""
         return self.seg_a[:, 0] + 1j * self.seg_a[:, 1]

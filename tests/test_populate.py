@@ -29,7 +29,7 @@ from behaviors.populate import (
     populate_policy,
     use_bfloat16,
 )
-from behaviors.routes import INSERT_LANE_RUN, lane_runs_out
+from behaviors.routes import INSERT_ENTRY_CLEARANCE, INSERT_LANE_RUN, lane_runs_out
 from behaviors.sumo_home import sumo_binary
 from sumo_scenarios.osm_like import Chain, run_netconvert, write_plain
 
@@ -311,6 +311,7 @@ def test_every_collision_and_off_track_is_explained_in_the_agents_table(tmp_path
 def test_no_agent_is_put_down_in_a_lane_that_ends_before_it_could_merge_out(tmp_path):
     """A lane drop (4 -> 3 lanes after 800 m): no agent starts in the right lane's last
     INSERT_LANE_RUN metres (one put at the end of a dropping lane stood there and the lane queued),
+    nor within INSERT_ENTRY_CLEARANCE of the start of the road, where SUMO puts its own cars down,
     and no lane keeper in the fast-most lane (it would only move out of it)."""
     chain = Chain()
     chain.way("wide", 4, [(800.0, 0.0)], 3.75)
@@ -323,6 +324,8 @@ def test_no_agent_is_put_down_in_a_lane_that_ends_before_it_could_merge_out(tmp_
     first = first[first.index.isin(pd.read_csv(agents_path(fcd))["id"])]  # withdrawn ones left no row
     assert len(first) >= 40 and summary.insert_retries > 0
     dropping = first[first["lane"] == "wide_0"]
+    on_entry = first[first["lane"].str.startswith("wide_")]
+    assert len(on_entry) and (on_entry["pos"] >= INSERT_ENTRY_CLEARANCE).all(), on_entry[["lane", "pos"]]
     assert len(dropping) and (dropping["pos"] <= 800.0 - INSERT_LANE_RUN).all(), dropping[["pos", "speed"]]
     keepers_first = first[first.index.str.startswith("keeper_")]
     assert len(keepers_first) and not keepers_first["lane"].isin(["wide_3", "narrow_2"]).any()
