@@ -252,6 +252,9 @@ class LaneDriving:
     shorter_lane_m: float = 100.0  # m: a lane that stops leading on this much before the own one
     keep_right_reach: float = 1000.0  # m: a slow-side lane kept to leads on this far, and as far as the own
     keep_right_catch_up_s: float = 20.0  # s: a slow-side leader the car would reach this soon: not free
+    entry_clearance: float = 200.0  # m: no change begins within this of the start of an edge nothing
+    # leads onto, where SUMO puts a scenario's cars down at speed into a lane it finds free of cars
+    # whose centre is in it (a car came in at 40 m/s behind an agent moving over into its lane)
     polite_decel: float = 0.5  # m/s^2: keeping right asks no harder braking of the new follower
     min_time_headway: float = 1.15  # s: the policy's accel may not push the car closer behind its leader
     diagonal_headway: float = 0.3  # s: kept behind the fast-side lane's leader not to be passed
@@ -674,7 +677,7 @@ def actuate_lanes(
     side_limit: np.ndarray | None = None,
     speed_cap: np.ndarray | None = None,
     lane_leads_on: np.ndarray | None = None,
-    on_normal_edge: np.ndarray | None = None,
+    may_begin: np.ndarray | None = None,
     habits: LaneHabits | None = None,
     far_fast_leader: tuple[np.ndarray, np.ndarray] | None = None,
     held_for: np.ndarray | None = None,
@@ -687,8 +690,8 @@ def actuate_lanes(
     mirrors); `offset` and `half_width` are the carriageway's. `gap`/`other_speed` [N, 6]: the
     neighbours in lanes.NEIGHBOUR_SLOTS order (gap +inf where none, 0 alongside or no lane). `angle` in
     the result is atan(lateral speed / speed). A car that heads for a neighbour lane also
-    follows that lane's leader, as a driver who moves over does. No change begins off
-    `on_normal_edge` [N] bool (None: everywhere). `habits` (None: all keep right, pass as
+    follows that lane's leader, as a driver who moves over does. No change begins where
+    `may_begin` [N] bool is false (None: everywhere). `habits` (None: all keep right, pass as
     `lateral` says and go to the slow side when the policy asks) tell who keeps right and who
     passes a slower leader unasked; with them, only the rules move a car to the slow side;
     `far_fast_leader` ([N] gap, [N] speed; None: none) is the nearest leader in a lane beyond the
@@ -740,7 +743,7 @@ def actuate_lanes(
         free,
         held,
         leave,
-        on_normal_edge,
+        may_begin,
     )
     reaching = reaching_over(
         traffic, lane_offset, lateral_speed, lane_width, car.width, lanes_fast, lanes_slow

@@ -331,6 +331,14 @@ class TrafficDriver:
         patience = np.where(overtaker, ruled.patience, ruled.keeper_patience)
         return LaneHabits(overtaker | fast_most, overtaker, margin, patience)
 
+    def may_begin(self, fleet: Fleet) -> np.ndarray:
+        """[N] bool: where an agent may begin a lane change: not inside a junction (its lanes are a
+        connection's, not the carriageway's), nor near the start of an edge nothing leads onto."""
+        r, f = fleet.rows, fleet.rows.frame
+        assert f is not None
+        entering = fleet.geometry.lane_on_entry[f.lane_row] & (r.shape_pos < self.lateral.entry_clearance)
+        return f.on_normal_edge & ~entering
+
     def actuate(self, fleet: Fleet, actions: np.ndarray) -> Actuation:
         r, f, own = fleet.rows, fleet.rows.frame, fleet.rows.own
         lanes, around = own.lanes, own.around
@@ -340,7 +348,8 @@ class TrafficDriver:
             own.lateral_speed, own.lateral_accel, own.changing, lanes.lane_offset, lanes.lane_width,
             lanes.lanes - 1 - lanes.lane_number, lanes.lane_number, f.offset, f.half_width, f.speed_limit,
             fleet.dt, fleet.car, self.lateral, r.side_limit, r.speed_cap, lanes.lane_leads_on,
-            f.on_normal_edge, self.habits(lanes), (around.far_fast_gap, around.far_fast_speed), own.held_for,
+            self.may_begin(fleet), self.habits(lanes), (around.far_fast_gap, around.far_fast_speed),
+            own.held_for,
             (around.lane_follower_gap, around.lane_follower_speed),
         )  # fmt: skip
         # a junction's internal edge holds only the lanes of some connections, not the

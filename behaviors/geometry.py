@@ -120,10 +120,12 @@ class RoadGeometry:
     lefthand: bool = False
 
     @functools.cached_property
-    def entry_edges(self) -> frozenset[str]:
-        """Normal edges no car connection leads onto: where SUMO puts a scenario's cars down."""
+    def lane_on_entry(self) -> np.ndarray:
+        """[L] bool: lanes of the normal edges no car connection leads onto, where SUMO puts a
+        scenario's cars down."""
         entered = {to for ahead in self.car_successors.values() for to in ahead}
-        return frozenset(e for e, info in self.edges.items() if info.normal and e not in entered)
+        entry = {e for e, info in self.edges.items() if info.normal and e not in entered}
+        return np.array([edge in entry for edge in self.lane_edge], bool)
 
     @functools.cached_property
     def seg_za(self) -> np.ndarray:

@@ -27,11 +27,6 @@ INSERT_LANE_RUN_S = 16.0
 """Nor an agent in a lane that stops leading on along its route within max(this m, this s at its
 speed) while another lane of its edge goes on: put down at the end of a dropping lane, it stood
 there and the lane queued behind it (the policies merge out over the last 350 m, not from rest)."""
-INSERT_ENTRY_CLEARANCE = 200.0
-"""m: nor an agent within this of the start of an edge nothing leads onto, where SUMO puts a
-scenario's own cars down at their speed into a lane it finds free of cars whose centre is in it:
-on the dense motorway a car came in at 40 m/s 34 m behind an agent put down at such an edge's
-start and moving over into that lane (its body over the line), and ran into it."""
 
 
 @dataclass(frozen=True)
@@ -140,11 +135,10 @@ def misplaced(
     keeper: np.ndarray | None = None,
 ) -> np.ndarray:
     """[N] bool: which of the cars SUMO just placed (`ids`; `agent` [N] marks the learned ones) are
-    withdrawn and put elsewhere: too close to another car, an agent in a lane that runs out or near
-    the start of an edge where SUMO puts cars down (INSERT_ENTRY_CLEARANCE), or a lane keeper
-    (`keeper` [N], None: none) in the fast-most of several car lanes (as the keepers' habits count
-    lanes, in `geometry`): it would only move out of it, which traffic coming onto a road from its
-    slow side never has to."""
+    withdrawn and put elsewhere: too close to another car, an agent in a lane that runs out, or a
+    lane keeper (`keeper` [N], None: none) in the fast-most of several car lanes (as the keepers'
+    habits count lanes, in `geometry`): it would only move out of it, which traffic coming onto a
+    road from its slow side never has to."""
     rows = np.array([vehicles.row[v] for v in ids], np.int64)
     out = too_close(vehicles, rows)
     agents = [v for v, a in zip(ids, agent, strict=True) if a]
@@ -155,12 +149,6 @@ def misplaced(
         best_end = np.array([max(a.values(), default=0.0) for a in ahead])
         lane_pos, _ = sim.read_lane_places(agents)
         out[agent] |= lane_runs_out(lane_end, best_end, lane_pos, vehicles.speed[rows[agent]])
-        edges = [lane.rpartition("_")[0] for lane in lanes]
-        entry_room = np.array([  # a short entry edge keeps its last three quarters
-            min(INSERT_ENTRY_CLEARANCE, geometry.edges[e].length / 4) if e in geometry.entry_edges else 0.0
-            for e in edges
-        ])  # fmt: skip
-        out[agent] |= lane_pos < entry_room
         if keeper is not None:
             lane_rows = np.array([geometry.lane_index.get(lane, -1) for lane in lanes], np.int64)
             count = np.where(lane_rows >= 0, geometry.lane_num_lanes[lane_rows], 0)

@@ -12,6 +12,7 @@ import pandas as pd
 import pytest
 import torch
 
+from behaviors.actuation import LaneDriving
 from behaviors.agents_table import INCIDENT_COLUMNS, agents_path, columns
 from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.ddpg.networks import Actor
@@ -29,7 +30,7 @@ from behaviors.populate import (
     populate_policy,
     use_bfloat16,
 )
-from behaviors.routes import INSERT_ENTRY_CLEARANCE, INSERT_LANE_RUN, lane_runs_out
+from behaviors.routes import INSERT_LANE_RUN, lane_runs_out
 from behaviors.sumo_home import sumo_binary
 from sumo_scenarios.osm_like import Chain, run_netconvert, write_plain
 
@@ -311,8 +312,8 @@ def test_every_collision_and_off_track_is_explained_in_the_agents_table(tmp_path
 def test_no_agent_is_put_down_in_a_lane_that_ends_before_it_could_merge_out(tmp_path):
     """A lane drop (4 -> 3 lanes after 800 m): no agent starts in the right lane's last
     INSERT_LANE_RUN metres (one put at the end of a dropping lane stood there and the lane queued),
-    nor within INSERT_ENTRY_CLEARANCE of the start of the road, where SUMO puts its own cars down,
-    and no lane keeper in the fast-most lane (it would only move out of it)."""
+    and no lane keeper in the fast-most lane (it would only move out of it). Near the road's start,
+    where SUMO puts cars down, no agent changes lanes (LaneDriving.entry_clearance)."""
     chain = Chain()
     chain.way("wide", 4, [(800.0, 0.0)], 3.75)
     chain.way("narrow", 3, [(800.0, 0.0)], 3.75)
@@ -324,8 +325,13 @@ def test_no_agent_is_put_down_in_a_lane_that_ends_before_it_could_merge_out(tmp_
     first = first[first.index.isin(pd.read_csv(agents_path(fcd))["id"])]  # withdrawn ones left no row
     assert len(first) >= 40 and summary.insert_retries > 0
     dropping = first[first["lane"] == "wide_0"]
-    on_entry = first[first["lane"].str.startswith("wide_")]
-    assert len(on_entry) and (on_entry["pos"] >= INSERT_ENTRY_CLEARANCE).all(), on_entry[["lane", "pos"]]
+    trace = read_fcd(fcd).sort_values(["id", "time"])
+    agent_rows = trace[trace["id"].isin(first.index)]
+    crossed = (agent_rows["lane"] != agent_rows.groupby("id")["lane"].shift()) & agent_rows["id"].eq(
+        agent_rows["id"].shift()
+    )
+    on_wide = agent_rows[crossed & agent_rows["lane"].str.startswith("wide_")]
+    assert (on_wide["pos"] >= LaneDriving().entry_clearance).all(), on_wide[["id", "lane", "pos"]]
     assert len(dropping) and (dropping["pos"] <= 800.0 - INSERT_LANE_RUN).all(), dropping[["pos", "speed"]]
     keepers_first = first[first.index.str.startswith("keeper_")]
     assert len(keepers_first) and not keepers_first["lane"].isin(["wide_3", "narrow_2"]).any()

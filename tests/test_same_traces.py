@@ -75,9 +75,9 @@ def sha256(path: Path) -> str:
 
 
 RECORDED = {
-    "highway_traffic": "716392fcbc7b1394e940e2b3ec7657bf897f9f881275c5224cef49bbc17ec001",
-    "highway_paper": "691d5283b6aba4e82ae294fd442902dd197073cb650d8efb6dc92a02f7797ead",
-    "share_lanedrop": "4ca82112af013b6005a304e3e19aebbd35b8f07bcf4f8a6812c3b83ee8918160",
+    "highway_traffic": "647804bd057abb3a5fd3239da74bac55a5aefe93f8e43446700a027c03de7f26",
+    "highway_paper": "357ab8c99315bc4115ad846f45422bc7474499c6b7343aee7b6a177dba96291a",
+    "share_lanedrop": "76145ad360e25f916ba7b1dc4abe7e971041823ed580acc3182d191a39d547bc",
 }
 """sha256 of each case's FCD (csv), recorded on the code before the driver became one object (the
 traffic case again when lane changes began to wait for an acceptable gap, and both traffic-driver
@@ -93,8 +93,8 @@ when a car let in earned no shorter gap by being faster and SUMO's driver of an 
 passenger car does, and again when a scenario's car made an agent got the agents' lcAccelLat, so
 that SUMO moves it sideways as the driver asks, and again when sensing began to follow a lane
 through a junction into the lane it leads into, and both traffic-driver cases when the car-following
-law began to stand 2.5 m behind a car, as SUMO's cars do, and both highway cases when populate
-stopped putting agents down near the start of an edge nothing leads onto: a change of behaviour on purpose
+law began to stand 2.5 m behind a car, as SUMO's cars do, and the lane-drop case when no change
+began any more near the start of an edge nothing leads onto: a change of behaviour on purpose
 is a new recording, in the same commit)."""
 
 
