@@ -664,20 +664,23 @@ def test_free_road_at_the_desired_speed_is_the_best_step():
     assert terms.total == pytest.approx([1.0, 1.0])
 
 
-def test_following_a_slower_car_costs_an_overtaker_but_not_a_keeper():
+def test_keeping_up_with_a_slower_car_costs_nothing_and_hanging_back_costs_both_behaviours():
+    """The leader's speed is the target while it is nearer than 3 m + 1.3 s x speed (the law keeps
+    2.5 m + 1.2 s): following it there costs neither behaviour (passing is the lane habits'); hanging
+    back costs as much as driving slower than wanted on a free road (fine-tunes learnt to hang back
+    when it cost nothing)."""
     gap = np.full((2, 6), np.inf)
-    gap[:, 0] = 28.0  # 1.4 s behind a car at 20 m/s
+    gap[:, 0] = 28.0  # 1.4 s behind a car at 20 m/s: within 3 m + 1.3 s x 20 m/s = 29 m
     other = np.full((2, 6), np.nan)
     other[:, 0] = 20.0
     terms = traffic_rewards(
         traffic_step(speed=np.full(2, 20.0), gap=gap, other_speed=other), TrafficWeights()
     ).as_dict()
-    assert terms["speed"][0] == pytest.approx(1.0)  # keeper: the lane allows 20 m/s
-    assert terms["speed"][1] == pytest.approx(1 - 10 / 30)  # overtaker: wants 30
+    assert terms["speed"] == pytest.approx([1.0, 1.0])  # keeper, overtaker: the lane allows 20 m/s
     assert terms["headway"] == pytest.approx([0.0, 0.0]) and terms["closing"] == pytest.approx([0.0, 0.0])
-    gap[:, 0] = 60.0  # 3 s behind it: a keeper is asked to close up to a human headway
+    gap[:, 0] = 60.0  # 3 s behind it: both are asked to close up to a human headway
     far = traffic_rewards(traffic_step(speed=np.full(2, 20.0), gap=gap, other_speed=other), TrafficWeights())
-    assert far.as_dict()["speed"][0] < 1.0
+    assert far.as_dict()["speed"] == pytest.approx([1 - 10 / 30, 1 - 10 / 30])  # both want 30 m/s
 
 
 def test_short_headway_closing_in_lane_changes_and_passing_on_the_slow_side_cost():
