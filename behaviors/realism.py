@@ -722,13 +722,11 @@ def like_for_like(
     speed = by["speed"].mean().unstack()
     time = by["dt"].sum().unstack()
     km = by["km"].sum().unstack()
-    count = made.assign(trip=trip[made["vehicle"].to_numpy()]).groupby(["trip", "group"]).size()
-    rate = count.unstack().reindex(index=km.index, columns=km.columns).fillna(0) / km
-    if not {over, under} <= set(km.columns):
-        return {"trips": 0.0, "km_share": 0.0, "mean_speed": math.nan, "passes_per_km": math.nan}
-    shared = km.index[(km[over] > 0) & (km[under] > 0)]
+    shared = km.index[(km[over] > 0) & (km[under] > 0)] if {over, under} <= set(km.columns) else km.index[:0]
     if not len(shared):
         return {"trips": 0.0, "km_share": 0.0, "mean_speed": math.nan, "passes_per_km": math.nan}
+    count = made.assign(trip=trip[made["vehicle"].to_numpy()]).groupby(["trip", "group"]).size()
+    rate = count.unstack().reindex(index=km.index, columns=km.columns).fillna(0) / km
 
     def weighted(values: pd.DataFrame, weights: pd.DataFrame) -> float:
         w = weights.loc[shared, over] + weights.loc[shared, under]

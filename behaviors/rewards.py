@@ -155,7 +155,7 @@ class TrafficWeights:
     `free_headway` x speed; the car-following law keeps 2.5 m + 1.2 s), and hanging back behind it
     costs as much as driving slower than wanted on a free road. With the leader's speed counting
     out to 1.6 s, and an overtaker judged against its desired speed whatever was ahead, a fine-tuned
-    policy learnt to hang back (headways 1.37 s on a curved motorway, 21% less flow at 27 veh/lane-km
+    policy learnt to hang back (headways 1.37 s on a curved motorway, 20% less flow at 27 veh/lane-km
     with every car learned); passing is the lane habits' (`TrafficDriver.habits`), not the reward's.
     """
 
