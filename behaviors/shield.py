@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviors.actuation import CarModel
-from behaviors.sensors import Neighbours, nearest_per_slot, neighbours
+from behaviors.sensors import PASSING_ROOM, Neighbours, nearest_per_slot, neighbours
 
 SIDE_MARGIN = 0.3
 """Metres of lateral clearance kept between two cars side by side (a pair ends up twice this apart)."""
@@ -90,7 +90,10 @@ def surroundings(
     beside = alongside & (side_gap > 0)  # overlapping sideways already: ahead or behind, not beside
     for side, mask in ((0, beside & (left > 0)), (1, beside & (left < 0))):
         np.minimum.at(room[:, side], q[mask], side_gap[mask])
-    path = np.flatnonzero(close & (side_gap < PATH_MARGIN) & (ahead > 0))  # cars ahead in the agent's way
+    # cars ahead in the agent's way; not one beside it with room to pass, which the side limit keeps
+    # clear (capped to the speed of a car that stood beside it, an agent stood for good)
+    passable = beside & (side_gap >= PASSING_ROOM)
+    path = np.flatnonzero(close & (side_gap < PATH_MARGIN) & (ahead > 0) & ~passable)
     q, m, gap = q[path], m[path], ahead[path] - car.length
     agent, first = nearest_per_slot(n, q, gap)
     leader[agent] = m[first]

@@ -54,6 +54,16 @@ def test_cars_ahead_or_behind_are_not_beside():
     assert scene([(0.0, -2.2)]).side_room[0, 1] == pytest.approx(0.4)
 
 
+def test_a_car_beside_with_room_to_pass_is_no_leader_however_far_ahead_it_reaches():
+    # at a lane drop's end a car waiting to merge stood 1.5 m ahead, its body 0.7 m from the
+    # agent's: the agent, capped to its speed (0), stood beside it for two minutes
+    roomy = scene([(1.5, -2.5)])  # 2.5 - 1.8 = 0.7 m free
+    assert roomy.leader.tolist() == [-1] and roomy.side_room[0, 1] == pytest.approx(0.7)
+    tight = scene([(1.5, -2.3)])  # 0.5 m: under PASSING_ROOM, still in the agent's way
+    assert tight.leader.tolist() == [1] and tight.side_room[0, 1] == pytest.approx(0.5)
+    assert scene([(7.0, -2.5)]).leader.tolist() == [1]  # ahead, not beside: its path can still close
+
+
 def test_nobody_around_leaves_every_move_and_speed_free():
     around = scene([])
     assert np.isinf(around.side_room).all() and around.leader.tolist() == [-1]

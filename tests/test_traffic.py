@@ -130,6 +130,26 @@ def test_surroundings_find_leaders_and_followers_per_lane():
     assert obs[0, TRAFFIC_SLICES["relative_speed"]][0] == pytest.approx(-5.0 / 15.0)
 
 
+@pytest.mark.parametrize(
+    "right_of_centre, other_speed, leads",
+    [
+        (2.5, 0.0, False),  # stands, body over the line, 0.7 m clear of ours: driven past
+        (2.3, 0.0, True),  # 0.5 m clear: too close to pass
+        (2.5, 3.0, True),  # moving: followed, as any car over the line
+    ],
+)
+def test_a_car_standing_alongside_over_the_line_leads_only_without_room_to_pass(
+    right_of_centre, other_speed, leads
+):
+    # at a lane drop's end a car waiting to merge stood with its body over the line, and the agent
+    # beside it stood for it while it waited for the agent: two minutes, until the run ended
+    agent = one_agent(speed=np.array([0.0]))
+    positions = np.array([[0.0, 0.0], [1.5, -right_of_centre]])
+    around = surroundings(agent, positions, np.array([0.0, other_speed]), np.array([0]), STRAIGHT)
+    assert (around.gap[0, 0] == 0.0) == leads
+    assert around.gap[0, 4] == 0.0  # its own lane's car alongside either way: no change into it
+
+
 def test_nearest_per_slot_is_the_smallest_distance_of_each_slot_across_many_agents():
     rng = np.random.default_rng(3)
     slot = rng.integers(0, 60, 2_000)
