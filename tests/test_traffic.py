@@ -25,7 +25,7 @@ from behaviors.actuation import (
     look_ahead,
     slow_side_free,
 )
-from behaviors.control import Fleet
+from behaviors.control import Fleet, moves_to_send
 from behaviors.drivers import TrafficDriver, make_driver
 from behaviors.env import make_env
 from behaviors.geometry import RoadGeometry, build_geometry, load_geometry
@@ -1099,6 +1099,28 @@ def test_sumo_changes_lanes_for_an_agent_whose_last_sideways_move_was_too_small_
             lanes.add(sim.read_lanes(["agent"])[0])
             sim.step()
         assert "X_0" in lanes
+
+
+def test_a_repeated_sideways_move_of_0_left_out_moves_the_car_as_sending_it(tmp_path):
+    """`Fleet.act` leaves out a 0 to an agent whose last move was 0 (`moves_to_send`): after a 0,
+    SUMO holds 0 whatever it was carrying on (a move too small to complete, one longer than a
+    step), so the car goes where it went with every move sent, in every step."""
+    net = exit_net(tmp_path)
+    moves = [1e-5, 0.0, 0.0, 0.4, 0.0, 0.0, 1.5, 0.0, 0.0, -0.3, 0.0, 0.0, 0.0]
+    runs = []
+    for leave_out in (False, True):
+        with keeper_on(net, ["A", "B"], lane=1, pos=50.0, speed=25.0) as (sim, _):
+            last, places = np.full(1, np.nan), []
+            for move in moves:
+                send = moves_to_send(np.array([move]), last) if leave_out else None
+                sim.command_agents(["agent"], np.array([25.0]), np.array([move]), send)
+                last = np.array([move])
+                sim.step()
+                readings = sim.read_agents(["agent"])
+                places.append((readings.lane_id[0], float(readings.lateral_pos[0])))
+        runs.append(places)
+    assert runs[0] == runs[1]
+    assert len({lateral for _, lateral in runs[0]}) > 3  # the moves did move the car
 
 
 def test_an_agent_given_back_has_its_own_vtype_and_exact_sideways_moves_again(tmp_path):
