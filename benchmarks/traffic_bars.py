@@ -24,7 +24,7 @@ from common import write_measured_doc
 from behaviors.agents_table import agents_path
 from behaviors.export import read_fcd
 from behaviors.populate import PopulateConfig, populate
-from behaviors.realism import KEEPERS, OVERTAKERS, measure, read_agents, read_lanes, write_report
+from behaviors.realism import KEEPERS, OTHER_GROUP, OVERTAKERS, measure, read_agents, read_lanes, write_report
 from sumo_scenarios import get_scenario
 
 
@@ -69,6 +69,8 @@ DRIVING_BARS = (
         lambda t, f: cell(t, "lane_changes_per_km", KEEPERS), lambda v: v <= 0.15),
     Bar("... of them the route did not ask for (`behave report`; not a bar)", "",
         lambda t, f: cell(t, "discretionary_lane_changes_per_km", KEEPERS), None),
+    Bar("SUMO's vehicles: lane changes per vehicle-km (reference, not a bar)", "",
+        lambda t, f: cell(t, "lane_changes_per_km", OTHER_GROUP), None),
     Bar("keepers: share of time in the rightmost lane", "<= 75%",
         lambda t, f: cell(t, "lane_0_share", KEEPERS), lambda v: v <= 0.75),
     Bar("overtakers: lane changes per vehicle-km", "<= 1",
