@@ -10,7 +10,7 @@ PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 WORKERS ?= 1
 
-.PHONY: setup run test typecheck lint bench bench-scale soak learn-check pretrained paper realism own-nets dense flow clean
+.PHONY: setup run test typecheck lint bench bench-scale soak learn-check pretrained traffic-policy paper realism own-nets dense flow clean
 
 setup: $(DEV_STAMP)
 
@@ -65,6 +65,9 @@ learn-check: $(STAMP)
 
 pretrained: $(STAMP)
 	$(BIN)/python benchmarks/make_pretrained.py --seed $(SEED)
+
+traffic-policy: $(STAMP)
+	$(BIN)/python benchmarks/make_pretrained.py --stages traffic
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/traffic_bars.py --seeds 0,1,2 --duration 600
