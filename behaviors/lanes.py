@@ -20,8 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviors.actuation import nan_as
+from behaviors.agents_table import STANDSTILL_SPEED
 from behaviors.geometry import NEXT_LANES_SEEN, RoadGeometry, road_coordinates
-from behaviors.sensors import PASSING_ROOM, Neighbours, nearest_per_slot, neighbours, within
+from behaviors.sensors import Neighbours, nearest_per_slot, neighbours, within
+from behaviors.shield import PASSING_ROOM
 
 SPEED_SCALE = 40.0
 """m/s: speeds are divided by this."""
@@ -34,8 +36,6 @@ MAX_LANES_SEEN = 3
 OTHER_LENGTH = 5.0
 """m: length assumed for other vehicles (gap = distance between front bumpers - length)."""
 OTHER_WIDTH = 1.8
-STANDING_SPEED = 0.5
-"""m/s: below this a vehicle stands."""
 SEARCH_RADIUS = GAP_RANGE + OTHER_LENGTH
 """m between front bumpers: the farthest a neighbour within GAP_RANGE can be."""
 
@@ -249,17 +249,18 @@ def surroundings(
         distance = np.abs(along) - OTHER_LENGTH
         row_slot = q * SLOTS_KEPT + behind  # + a lane's leader column: its leader, or the follower beside it
         slots, pairs = [], []
-        # a car that stands alongside with its body over the own lane's line, clear of the agent's
-        # body, is no leader: at a lane drop's end, one waiting to merge and an agent beside it that
-        # stood for it held each other up for two minutes
-        own_lane_leader = (
-            (distance > 0)
-            | (speeds[m] >= STANDING_SPEED)
-            | (np.abs(lane_units * width - agents.lane_offset[q]) - OTHER_WIDTH < PASSING_ROOM)
-        )
         for side, column in ((0, 0), (1, 2), (-1, 4)):
-            in_lane = (fast_edge > side - 0.5) & (slow_edge < side + 0.5)
-            k = np.flatnonzero(in_lane & own_lane_leader if side == 0 else in_lane)
+            k = np.flatnonzero((fast_edge > side - 0.5) & (slow_edge < side + 0.5))
+            if side == 0:
+                # a car standing alongside with its body over the line and room to drive past it
+                # leads nobody: at a lane drop's end, one waiting to merge and an agent beside it
+                # that stood for it held each other up for two minutes
+                standing = (distance[k] <= 0) & (speeds[m[k]] < STANDSTILL_SPEED)
+                if standing.any():
+                    s = k[standing]
+                    room = np.abs(lane_units[s] * width[s] - agents.lane_offset[q[s]]) - OTHER_WIDTH
+                    standing[standing] = room >= PASSING_ROOM
+                    k = k[~standing]
             slots.append(row_slot[k] + column)
             pairs.append(k)
         k = np.flatnonzero((slow_edge > 1.5) & ~behind)

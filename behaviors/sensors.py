@@ -26,10 +26,6 @@ FINAL_DRIVE = 3.9
 SHIFT_UP_RPM = 6500.0
 IDLE_RPM = 800.0
 
-PASSING_ROOM = 0.6
-"""m between the bodies of two cars side by side that lets one drive on past the other where that
-one stands: the clearance each keeps (shield.SIDE_MARGIN) on both sides."""
-
 OBS_SIZE = 65
 OBS_SIZE_WITH_ID = 66
 OBSERVATION_LAYOUT = (

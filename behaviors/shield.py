@@ -27,10 +27,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviors.actuation import CarModel
-from behaviors.sensors import PASSING_ROOM, Neighbours, nearest_per_slot, neighbours
+from behaviors.sensors import Neighbours, nearest_per_slot, neighbours
 
 SIDE_MARGIN = 0.3
 """Metres of lateral clearance kept between two cars side by side (a pair ends up twice this apart)."""
+
+PASSING_ROOM = 2 * SIDE_MARGIN
+"""Metres between the bodies of two cars side by side that let one drive on past the other: the
+clearance each keeps, on both sides."""
 
 LENGTHWISE_SLACK = 1.0
 """Metres added at both ends of a car when deciding whether two cars are alongside each other."""
