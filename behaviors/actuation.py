@@ -586,7 +586,7 @@ def falling_in(traffic: LaneTraffic, waiting: np.ndarray, lateral: LaneDriving) 
 
 def reaching_over(
     traffic: LaneTraffic, lane_offset: np.ndarray, lateral_speed: np.ndarray, lane_width: np.ndarray,
-    car_width: float, lanes_fast: np.ndarray, lanes_slow: np.ndarray,
+    car_width: float,
 ) -> np.ndarray:  # fmt: skip
     """[N] m/s^2: behind the leader of each neighbour lane the car's body reaches into while it is not
     moving away from that lane (np.inf where there is none, or nobody ahead there). A car that gives
@@ -597,11 +597,11 @@ def reaching_over(
     into it). A car moving away from a lane, as one that has just passed into the next lane beside a
     slower car, does not: bound by that car too, every pass slowed down and a queue of agents
     discharged 7% slower. A car alongside there (gap 0) is no leader: moving back is the answer to
-    it, not full braking."""
+    it, not full braking; where there is no lane, the gap is 0 too."""
     half_room = (lane_width - car_width) / 2
     over = np.stack([
-        (lane_offset > half_room) & (lanes_fast > 0) & (lateral_speed >= 0.0),
-        (lane_offset < -half_room) & (lanes_slow > 0) & (lateral_speed <= 0.0),
+        (lane_offset > half_room) & (lateral_speed >= 0.0),
+        (lane_offset < -half_room) & (lateral_speed <= 0.0),
     ], 1)  # fmt: skip
     ahead = traffic.gap[:, [2, 4]] > 0
     return np.min(np.where(over & ahead, traffic.lead_accel[:, 1:], np.inf), axis=1)
@@ -745,9 +745,7 @@ def actuate_lanes(
         leave,
         may_begin,
     )
-    reaching = reaching_over(
-        traffic, lane_offset, lateral_speed, lane_width, car.width, lanes_fast, lanes_slow
-    )
+    reaching = reaching_over(traffic, lane_offset, lateral_speed, lane_width, car.width)
     follow = np.minimum(traffic.lead_accel[:, 0], reaching)
     into = traffic.lead_accel[np.arange(len(steer)), np.where(heading > 0, 1, np.where(heading < 0, 2, 0))]
     accel = np.clip(actions[:, 1], 0.0, 1.0)
