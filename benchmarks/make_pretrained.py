@@ -27,7 +27,7 @@ import sys
 import time
 from pathlib import Path
 
-from behaviors.ddpg.checkpoint import save_actor_only
+from behaviors.ddpg.checkpoint import load_actor, save_actor_only
 from behaviors.env import EnvConfig
 from behaviors.evaluate import evaluate
 from behaviors.files import atomic_write_text
@@ -156,8 +156,7 @@ def same_actor(checkpoint: Path, shipped: Path) -> bool:
 
     if not shipped.exists():
         return False
-    new = torch.load(checkpoint, map_location="cpu", weights_only=False)["actor"]
-    old = torch.load(shipped, map_location="cpu", weights_only=False)["actor"]
+    new, old = (load_actor(path).state_dict() for path in (checkpoint, shipped))
     return new.keys() == old.keys() and all(torch.equal(new[k], old[k]) for k in new)
 
 

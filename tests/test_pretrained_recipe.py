@@ -10,6 +10,8 @@ from pathlib import Path
 
 import torch
 
+from behaviors.ddpg.checkpoint import load_checkpoint
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import make_pretrained
@@ -23,8 +25,10 @@ def shortened(command: list[str], out: Path) -> list[str]:
 
 
 def weights(checkpoint: Path) -> dict[str, torch.Tensor]:
-    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    return {f"{net}.{key}": value for net in ("actor", "critic") for key, value in state[net].items()}
+    state = load_checkpoint(checkpoint)
+    assert state.critic_state is not None  # a full checkpoint, not an actor-only file
+    nets = {"actor": state.actor_state, "critic": state.critic_state}
+    return {f"{net}.{key}": value for net, params in nets.items() for key, value in params.items()}
 
 
 def test_the_traffic_recipe_starts_from_its_bundled_checkpoint_and_repeats_weight_for_weight(tmp_path):
