@@ -66,6 +66,11 @@ AGENT_GROUPS = ("keepers", "overtakers")
 """realism.group_names' names for the learned cars."""
 STAND_SPEED = 0.1
 STAND_S = 30.0
+PAST_BOTTLENECK = {"motorway4": "m4"}
+"""The edge past a road's bottleneck: its flow is what the bottleneck lets through."""
+QUEUE_DISCHARGE_REAL = (1800, 2000)
+"""veh/h/lane: real queues discharge at this, some 5-15% below the capacity before breakdown (Hall
+and Agyemang-Duah 1991; Cassidy and Bertini 1999)."""
 
 
 # --- the roads -------------------------------------------------------------------------------
@@ -202,6 +207,9 @@ def run_one(run: Run) -> dict:
                        end_s=run.warmup + run.measure)  # fmt: skip
     whole = region(cells)
     row.update(density=whole.loc[ALL, "density"], flow=whole.loc[ALL, "flow"], speed=whole.loc[ALL, "speed"])
+    if run.road in PAST_BOTTLENECK:
+        past = region(cells[cells["edge"] == PAST_BOTTLENECK[run.road]])
+        row.update(past_flow=past.loc[ALL, "flow"], past_speed=past.loc[ALL, "speed"])
     row["agents_standing_30s"] = agents_standing(df, groups, run.warmup)
     row.update(agents_headways(df, run.net))
     return row
@@ -301,6 +309,23 @@ def bar_mark(r: pd.Series, ratio: float) -> str:
     return "; ".join(marks)
 
 
+def bottleneck_table(rows: pd.DataFrame) -> list[str]:
+    """Per bottleneck road, density and fleet: the flow on the edge past the bottleneck."""
+    header = ["road", "target veh/lane-km", "fleet", "edge past the bottleneck", "flow there veh/h/lane",
+              "speed there m/s", "/ SUMO alone"]  # fmt: skip
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    bottlenecks = rows[rows["road"].isin(PAST_BOTTLENECK)]
+    for (road, target), part in bottlenecks.groupby(["road", "target_density"], sort=False):
+        alone = part.loc[part["fleet"] == "SUMO alone", "past_flow"]
+        base = float(alone.iloc[0]) if len(alone) else math.nan
+        for _, r in part.iterrows():
+            lines.append("| " + " | ".join([
+                road, f"{target:g}", r["fleet"], f"`{PAST_BOTTLENECK[road]}`", fmt(r["past_flow"]),
+                fmt(r["past_speed"], 1), fmt(r["past_flow"] / base, 2) if base > 0 else "-",
+            ]) + " |")  # fmt: skip
+    return lines
+
+
 def discharge_table(rows: pd.DataFrame) -> list[str]:
     header = ["fleet", "cars (keepers+overtakers+SUMO)", "queued at release", "passed the detector",
               "discharge flow veh/h/lane", "/ SUMO alone", "bar: >= 1,700"]  # fmt: skip
@@ -394,6 +419,20 @@ def document(
         *flow_table(flow_rows),
         "",
     ]
+    if "past_flow" in flow_rows:
+        low, high = QUEUE_DISCHARGE_REAL
+        lines += [
+            "### Through the bottleneck",
+            "",
+            "What a bottleneck lets through is its capacity for a study: Edie's flow on the edge past "
+            "it, over the same window. Where the road upstream queues, this is the queue's discharge "
+            f"through the lane drop; real queues discharge at about {low:,}-{high:,} veh/h/lane, "
+            "5-15% below the capacity before breakdown (Hall and Agyemang-Duah 1991; Cassidy and "
+            "Bertini 1999).",
+            "",
+            *bottleneck_table(flow_rows),
+            "",
+        ]
     if len(queue_rows):
         lines += [
             "### Queue discharge",
