@@ -34,7 +34,8 @@ from behaviors.files import atomic_write_text
 from behaviors.metrics import mean_rows
 from behaviors.policy import load_policy
 
-PRETRAINED = Path(__file__).resolve().parents[1] / "behaviors" / "pretrained"
+REPOSITORY = Path(__file__).resolve().parents[1]
+PRETRAINED = REPOSITORY / "behaviors" / "pretrained"
 LANE_WEIGHT = 0.5
 """Lane-discipline reward for the bundled policies (see README, Rewards). With the paper's
 reward alone, they settled astride lane lines (mean offset 0.56-0.62 of half a lane width);
@@ -114,6 +115,14 @@ def pick(out: Path, env: EnvConfig, seed: int, episodes: int) -> tuple[Path, dic
 AUTOMATIC_PICK = "of all saved checkpoints: fewest failures, then most reward"
 
 
+def as_shown(arg: str) -> str:
+    """A command's argument as the model card shows it: a path inside the repository relative to it,
+    as a user in a clean checkout types it (not where this checkout happens to be)."""
+    path = Path(arg)
+    inside = path.is_absolute() and path.is_relative_to(REPOSITORY)
+    return str(path.relative_to(REPOSITORY)) if inside else arg
+
+
 def card_section(
     title: str,
     cmd: list[str],
@@ -130,7 +139,7 @@ def card_section(
     lines = [
         f"## {title}",
         "",
-        f"- command: `{shlex.join(['behave', *cmd[3:]])}`",
+        f"- command: `{shlex.join(['behave', *map(as_shown, cmd[3:])])}`",
         f"- seed: {seed}; training episodes: {len(metrics)}; wall time: {wall / 60:.1f} min",
         f"- shipped checkpoint: {chosen.stem} ({how})",
         f"- evaluation ({m['episodes']:.0f} episodes, no exploration): "

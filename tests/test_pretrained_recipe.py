@@ -43,3 +43,11 @@ def test_the_traffic_recipe_starts_from_its_bundled_checkpoint_and_repeats_weigh
     assert first.keys() == start.keys() == again.keys()
     assert all(torch.equal(first[key], again[key]) for key in first)
     assert not all(torch.equal(first[key], start[key]) for key in first)  # it learnt from the start
+
+
+def test_the_model_card_shows_the_recipe_as_a_clean_checkout_runs_it(tmp_path):
+    command = make_pretrained.traffic_command(tmp_path, 150.0)
+    shown = [make_pretrained.as_shown(arg) for arg in command]
+    assert shown[shown.index("--init") + 1] == "behaviors/pretrained/starts/traffic_start.pt"
+    assert shown[shown.index("--out") + 1] == str(tmp_path / "traffic")  # outside: as given
+    assert make_pretrained.as_shown("0.0005") == "0.0005"
