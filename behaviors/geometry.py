@@ -232,6 +232,50 @@ class RoadGeometry:
             known[row] = self._departs_from(row)
         return known[rows] == 1
 
+    @functools.cached_property
+    def lane_prev(self) -> np.ndarray:
+        """[L] row of the one lane whose `lane_next` each lane is (the lane a car came on from), -1
+        where there is none or several (where lanes merge, which one a car came from is its own)."""
+        out = np.full(len(self.lane_next), -1, np.int64)
+        source = np.flatnonzero(self.lane_next >= 0)
+        target = self.lane_next[source]
+        out[target] = source
+        out[np.bincount(target, minlength=len(out)) > 1] = -1
+        return out
+
+    @functools.cached_property
+    def _prev_departs(self) -> np.ndarray:
+        """[L] `lane_prev_departs` as far as worked out: 1 yes, 0 no, -1 not yet."""
+        return np.where(self.lane_prev >= 0, -1, 0).astype(np.int8)
+
+    def lane_prev_departs(self, rows: np.ndarray) -> np.ndarray:
+        """[K] bool for lane `rows`: within NEXT_LANES_REACH before the lane's start, the lanes a car
+        came on from (`lane_prev`, up to NEXT_LANES_SEEN of them) leave the line its start points
+        back along by more than NEXT_LANE_TOLERANCE: the lanes behind shift sideways through the
+        junction, as `lane_next_departs` says of the lanes ahead. Worked out once per lane."""
+        known = self._prev_departs
+        for row in np.unique(rows[known[rows] < 0]).tolist():
+            known[row] = self._departs_behind(row)
+        return known[rows] == 1
+
+    def _departs_behind(self, row: int) -> bool:
+        """`lane_prev_departs` of one lane."""
+        start = self.lane_pose(np.array([row]), np.zeros(1))
+        points, reached, lane = [], 0.0, row
+        for _ in range(NEXT_LANES_SEEN):
+            lane = int(self.lane_prev[lane])
+            if lane < 0 or reached >= NEXT_LANES_REACH:
+                break
+            length = float(self.lane_shape_length[lane])
+            at = np.append(np.arange(length, max(length - (NEXT_LANES_REACH - reached), 0.0), -5.0), 0.0)
+            points.append(self.lane_pose(np.full(len(at), lane), at, with_curvature=False).point)
+            reached += length
+        offset = np.concatenate(points) - start.point[0]
+        heading, curvature = np.full(len(offset), start.angle[0]), np.full(len(offset), start.curvature[0])
+        ahead, across = road_coordinates(offset[:, 0], offset[:, 1], heading, curvature)
+        near = ahead >= -NEXT_LANES_REACH
+        return bool(near.any() and np.abs(across[near]).max() > NEXT_LANE_TOLERANCE)
+
     def _departs_from(self, row: int) -> bool:
         """`lane_next_departs` of one lane."""
         end = self.lane_pose(np.array([row]), self.lane_shape_length[[row]])

@@ -173,7 +173,42 @@ def lane_coordinates(
             along[past], across[past] = _along_next_lanes(
                 geometry, lane_row[pairs[past]], to_end[pairs[past]], target, along[past]
             )
+    comes_from = geometry.lane_prev_departs(lane_row)
+    if comes_from.any():
+        before = np.flatnonzero(comes_from[pairs] & (along < -shape_pos[pairs]))
+        if len(before):
+            target = front[pairs[before]] + offset[before]
+            along[before], across[before] = _along_previous_lanes(
+                geometry, lane_row[pairs[before]], shape_pos[pairs[before]], target, along[before]
+            )
     return along, across
+
+
+def _along_previous_lanes(
+    geometry: RoadGeometry, lane_row: np.ndarray, shape_pos: np.ndarray, target: np.ndarray, along: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(along, across) of `target`s behind the start (`shape_pos` metres behind the car) of lanes a car
+    came on from one lane: measured along that lane, and the one before it, as the car came.
+    Extrapolating the own lane's start back misplaced a car behind where the lanes shift sideways
+    through a junction: on `motorway4`, past the lanes the on-ramp adds, a car coming up at 28 m/s in
+    the lane that leads into the fast-side lane read as two lanes over, and an agent moved out in
+    front of it at 7 m/s."""
+    out_along, out_across = along.copy(), np.zeros(len(along))
+    todo = np.arange(len(along))
+    row, start, before = lane_row, -shape_pos, along + shape_pos  # before: metres before that start
+    for hop in range(NEXT_LANES_SEEN):
+        row = geometry.lane_prev[row]
+        length = geometry.lane_shape_length[row]
+        at, across = _project(geometry, row, np.zeros(len(row)), target, length + before)
+        further = (at < 0.0) & (geometry.lane_prev[row] >= 0) & (hop + 1 < NEXT_LANES_SEEN)
+        done = ~further
+        out_along[todo[done]] = start[done] - (length[done] - at[done])
+        out_across[todo[done]] = across[done]
+        todo, row, target = todo[further], row[further], target[further]
+        start, before = start[further] - length[further], at[further]
+        if not len(todo):
+            break
+    return out_along, out_across
 
 
 def _along_next_lanes(

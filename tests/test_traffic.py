@@ -316,6 +316,42 @@ def test_a_car_ahead_beyond_a_junction_is_placed_in_the_lane_its_own_lane_leads_
         assert around.other_speed[0, 0] == 30.0 and around.other_speed[0, 4] == 5.0
 
 
+def widening_junction(linked: bool) -> RoadGeometry:
+    """Two 3.5 m lanes along +x to x = 300, a 20 m junction, and three lanes on: a ramp's lane
+    joins on the right (b_0), so a_0 leads into b_1 and a_1 into b_2, each one lane further left."""
+    a = [(f"a_{k}", [(0.0, 3.5 * k), (300.0, 3.5 * k)], 3.5, 33.3, 300.0) for k in range(2)]
+    via = [(f":j_{k}", [(300.0, 3.5 * k), (320.0, 3.5 * (k + 1))], 3.5, 33.3, 20.3) for k in range(2)]
+    b = [(f"b_{k}", [(320.0, 3.5 * k), (800.0, 3.5 * k)], 3.5, 33.3, 480.0) for k in range(3)]
+    lane_next = [("a_0", ":j_0"), (":j_0", "b_1"), ("a_1", ":j_1"), (":j_1", "b_2")] if linked else []
+    edges = [("a", a, True), (":j", via, False), ("b", b, True)]
+    return build_geometry(edges, [("a", "b")], car_links=[("a", "b")], lane_next=lane_next)
+
+
+@pytest.mark.parametrize("linked", [True, False])
+def test_a_car_behind_a_junction_is_placed_in_the_lane_it_leads_into(linked):
+    """An agent 10 m into b_1; a fast car 30 m before the junction in a_1, which leads into b_2, the
+    agent's fast-side lane: it is that lane's follower (the gap check then keeps the agent from moving
+    out in front of it), not the agent's own lane's, where the straight line back from b_1's start
+    puts it (on `motorway4` an agent took it for a car two lanes over and was run into)."""
+    road = widening_junction(linked)
+    agent = one_agent(
+        front=np.array([[330.0, 3.5]]), lane_row=np.array([road.lane_index["b_1"]]),
+        shape_pos=np.array([10.0]), lane_number=np.array([1]), lanes=np.array([3]), speed=np.array([7.0]),
+    )  # fmt: skip
+    positions = np.array([[330.0, 3.5], [270.0, 3.5]])
+    around = surroundings(agent, positions, np.array([7.0, 28.0]), np.array([0]), road)
+    if linked:
+        departs = road.lane_prev_departs(np.array([road.lane_index["b_1"], road.lane_index["b_0"]]))
+        assert departs.tolist() == [True, False]  # b_0 comes from no lane: nothing behind to follow
+        through_junction = 10.0 + np.hypot(20.0, 3.5) + 30.0 - 5.0
+        assert around.gap[0, 3] == pytest.approx(through_junction, abs=0.5)
+        assert around.other_speed[0, 3] == 28.0
+        assert around.gap[0, 1] == np.inf  # nobody behind in the own lane
+        assert around.lane_follower_gap[0, 0] == pytest.approx(through_junction, abs=0.5)
+    else:
+        assert around.other_speed[0, 1] == 28.0 and np.isnan(around.other_speed[0, 3])
+
+
 NO_LEADERS = (np.full((1, 6), np.inf), np.full((1, 6), np.nan))
 
 
