@@ -214,11 +214,6 @@ class RoadGeometry:
         start = self.axis_s[i] - self.axis_s[lo]
         return LanePose(a + t[:, None] * d, angle, curvature, pos, length, start, start + span)
 
-    @functools.cached_property
-    def _next_departs(self) -> np.ndarray:
-        """[L] `lane_next_departs` as far as worked out: 1 yes, 0 no, -1 not yet."""
-        return np.where(self.lane_next >= 0, -1, 0).astype(np.int8)
-
     def lane_next_departs(self, rows: np.ndarray) -> np.ndarray:
         """[K] bool for lane `rows`: within NEXT_LANES_REACH of the lane's end, the lanes it leads into
         (`lane_next`, up to NEXT_LANES_SEEN of them) leave the line its end points along, bending
@@ -227,10 +222,7 @@ class RoadGeometry:
         the cars ahead as well, and following the lanes cost populate at 1,000 agents 0.8 ms a step.
         Worked out for a lane the first time it is asked for: a region's net has tens of thousands
         of junction lanes, at some 70 us each."""
-        known = self._next_departs
-        for row in np.unique(rows[known[rows] < 0]).tolist():
-            known[row] = self._departs_from(row)
-        return known[rows] == 1
+        return self._departing(rows, ahead=True)
 
     @functools.cached_property
     def lane_prev(self) -> np.ndarray:
@@ -243,55 +235,44 @@ class RoadGeometry:
         out[np.bincount(target, minlength=len(out)) > 1] = -1
         return out
 
-    @functools.cached_property
-    def _prev_departs(self) -> np.ndarray:
-        """[L] `lane_prev_departs` as far as worked out: 1 yes, 0 no, -1 not yet."""
-        return np.where(self.lane_prev >= 0, -1, 0).astype(np.int8)
-
     def lane_prev_departs(self, rows: np.ndarray) -> np.ndarray:
-        """[K] bool for lane `rows`: within NEXT_LANES_REACH before the lane's start, the lanes a car
-        came on from (`lane_prev`, up to NEXT_LANES_SEEN of them) leave the line its start points
-        back along by more than NEXT_LANE_TOLERANCE: the lanes behind shift sideways through the
-        junction, as `lane_next_departs` says of the lanes ahead. Worked out once per lane."""
-        known = self._prev_departs
+        """[K] bool for lane `rows`: the same behind the lane's start, along the lanes a car came on
+        from (`lane_prev`): the lanes behind shift sideways through the junction."""
+        return self._departing(rows, ahead=False)
+
+    @functools.cached_property
+    def _departs_known(self) -> dict[bool, np.ndarray]:
+        """[L] per direction (True: ahead, False: behind) `_departs` as far as worked out: 1 yes, 0 no
+        (also where no lane goes on that way), -1 not yet."""
+        return {ahead: np.where(chain >= 0, -1, 0).astype(np.int8)
+                for ahead, chain in ((True, self.lane_next), (False, self.lane_prev))}  # fmt: skip
+
+    def _departing(self, rows: np.ndarray, ahead: bool) -> np.ndarray:
+        known = self._departs_known[ahead]
         for row in np.unique(rows[known[rows] < 0]).tolist():
-            known[row] = self._departs_behind(row)
+            known[row] = self._departs(row, ahead)
         return known[rows] == 1
 
-    def _departs_behind(self, row: int) -> bool:
-        """`lane_prev_departs` of one lane."""
-        start = self.lane_pose(np.array([row]), np.zeros(1))
+    def _departs(self, row: int, ahead: bool) -> bool:
+        """Whether the lanes after one lane's end (`ahead`) or before its start leave the line that
+        end points along by more than NEXT_LANE_TOLERANCE within NEXT_LANES_REACH."""
+        chain, sign = (self.lane_next, 1.0) if ahead else (self.lane_prev, -1.0)
+        origin = self.lane_pose(np.array([row]), self.lane_shape_length[[row]] if ahead else np.zeros(1))
         points, reached, lane = [], 0.0, row
         for _ in range(NEXT_LANES_SEEN):
-            lane = int(self.lane_prev[lane])
+            lane = int(chain[lane])
             if lane < 0 or reached >= NEXT_LANES_REACH:
                 break
             length = float(self.lane_shape_length[lane])
-            at = np.append(np.arange(length, max(length - (NEXT_LANES_REACH - reached), 0.0), -5.0), 0.0)
+            # every 5 m from the end nearest the origin, and the far end
+            from_near = np.append(np.arange(0.0, min(length, NEXT_LANES_REACH - reached), 5.0), length)
+            at = from_near if ahead else length - from_near
             points.append(self.lane_pose(np.full(len(at), lane), at, with_curvature=False).point)
             reached += length
-        offset = np.concatenate(points) - start.point[0]
-        heading, curvature = np.full(len(offset), start.angle[0]), np.full(len(offset), start.curvature[0])
-        ahead, across = road_coordinates(offset[:, 0], offset[:, 1], heading, curvature)
-        near = ahead >= -NEXT_LANES_REACH
-        return bool(near.any() and np.abs(across[near]).max() > NEXT_LANE_TOLERANCE)
-
-    def _departs_from(self, row: int) -> bool:
-        """`lane_next_departs` of one lane."""
-        end = self.lane_pose(np.array([row]), self.lane_shape_length[[row]])
-        points, reached, lane = [], 0.0, row
-        for _ in range(NEXT_LANES_SEEN):
-            lane = int(self.lane_next[lane])
-            if lane < 0 or reached >= NEXT_LANES_REACH:
-                break
-            length = float(self.lane_shape_length[lane])
-            at = np.append(np.arange(0.0, min(length, NEXT_LANES_REACH - reached), 5.0), length)
-            points.append(self.lane_pose(np.full(len(at), lane), at, with_curvature=False).point)
-            reached += length
-        offset = np.concatenate(points) - end.point[0]
-        heading, curvature = np.full(len(offset), end.angle[0]), np.full(len(offset), end.curvature[0])
-        ahead, across = road_coordinates(offset[:, 0], offset[:, 1], heading, curvature)
-        near = ahead <= NEXT_LANES_REACH
+        offset = np.concatenate(points) - origin.point[0]
+        heading, curvature = np.full(len(offset), origin.angle[0]), np.full(len(offset), origin.curvature[0])
+        along, across = road_coordinates(offset[:, 0], offset[:, 1], heading, curvature)
+        near = sign * along <= NEXT_LANES_REACH
         return bool(near.any() and np.abs(across[near]).max() > NEXT_LANE_TOLERANCE)
 
     def _segments(
