@@ -270,6 +270,12 @@ def fmt(value: float, digits: int = 0) -> str:
     return "-" if value is None or not np.isfinite(value) else f"{value:,.{digits}f}"
 
 
+def sumo_alone(rows: pd.DataFrame, column: str) -> float:
+    """`column` of the SUMO-alone run among `rows` (one setting's fleets), the ratios' base; NaN if none."""
+    alone = rows.loc[rows["fleet"] == "SUMO alone", column]
+    return float(alone.iloc[0]) if len(alone) else math.nan
+
+
 def flow_table(rows: pd.DataFrame) -> list[str]:
     header = ["road", "target veh/lane-km", "fleet", "cars (keepers+overtakers+SUMO)", "density",
               "flow veh/h/lane", "speed m/s", "flow / SUMO alone", "agents stood >= 30 s",
@@ -277,8 +283,7 @@ def flow_table(rows: pd.DataFrame) -> list[str]:
               "bar"]  # fmt: skip
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for (road, target), part in rows.groupby(["road", "target_density"], sort=False):
-        alone = part.loc[part["fleet"] == "SUMO alone", "flow"]
-        base = float(alone.iloc[0]) if len(alone) else math.nan
+        base = sumo_alone(part, "flow")
         for _, r in part.iterrows():
             ratio = r["flow"] / base if base > 0 else math.nan
             lines.append("| " + " | ".join([
@@ -316,8 +321,7 @@ def bottleneck_table(rows: pd.DataFrame) -> list[str]:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     bottlenecks = rows[rows["road"].isin(PAST_BOTTLENECK)]
     for (road, target), part in bottlenecks.groupby(["road", "target_density"], sort=False):
-        alone = part.loc[part["fleet"] == "SUMO alone", "past_flow"]
-        base = float(alone.iloc[0]) if len(alone) else math.nan
+        base = sumo_alone(part, "past_flow")
         for _, r in part.iterrows():
             lines.append("| " + " | ".join([
                 road, f"{target:g}", r["fleet"], f"`{PAST_BOTTLENECK[road]}`", fmt(r["past_flow"]),
@@ -330,8 +334,7 @@ def discharge_table(rows: pd.DataFrame) -> list[str]:
     header = ["fleet", "cars (keepers+overtakers+SUMO)", "queued at release", "passed the detector",
               "discharge flow veh/h/lane", "/ SUMO alone", "bar: >= 1,700"]  # fmt: skip
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    alone = rows.loc[rows["fleet"] == "SUMO alone", "discharge_flow"]
-    base = float(alone.iloc[0]) if len(alone) else math.nan
+    base = sumo_alone(rows, "discharge_flow")
     for _, r in rows.iterrows():
         rate = r["discharge_flow"]
         lines.append("| " + " | ".join([
