@@ -136,9 +136,9 @@ def misplaced(
 ) -> np.ndarray:
     """[N] bool: which of the cars SUMO just placed (`ids`; `agent` [N] marks the learned ones) are
     withdrawn and put elsewhere: too close to another car, an agent in a lane that runs out, or a
-    lane keeper (`keeper` [N], None: none) in the fast-most of several car lanes (as the keepers'
-    habits count lanes, in `geometry`): it would only move out of it, which traffic coming onto a
-    road from its slow side never has to."""
+    lane keeper (`keeper` [N], None: none) in the fast-most of several car lanes (lanes counted as
+    in `geometry`): a keeper keeps its lane, and traffic comes onto a road from its slow side, not
+    into the lane the law leaves for passing."""
     rows = np.array([vehicles.row[v] for v in ids], np.int64)
     out = too_close(vehicles, rows)
     agents = [v for v, a in zip(ids, agent, strict=True) if a]

@@ -75,9 +75,9 @@ def sha256(path: Path) -> str:
 
 
 RECORDED = {
-    "highway_traffic": "647804bd057abb3a5fd3239da74bac55a5aefe93f8e43446700a027c03de7f26",
+    "highway_traffic": "329b23915379751cf503094bbbb31848bcad624d8af1c2d0a37dcbe4e86e0b73",
     "highway_paper": "357ab8c99315bc4115ad846f45422bc7474499c6b7343aee7b6a177dba96291a",
-    "share_lanedrop": "76145ad360e25f916ba7b1dc4abe7e971041823ed580acc3182d191a39d547bc",
+    "share_lanedrop": "46fd5c33e16d64d30733f92a8d4249ec31533746833b6a3bbbdd9c45602898c3",
 }
 """sha256 of each case's FCD (csv), recorded on the code before the driver became one object (the
 traffic case again when lane changes began to wait for an acceptable gap, and both traffic-driver
@@ -94,7 +94,9 @@ passenger car does, and again when a scenario's car made an agent got the agents
 that SUMO moves it sideways as the driver asks, and again when sensing began to follow a lane
 through a junction into the lane it leads into, and both traffic-driver cases when the car-following
 law began to stand 2.5 m behind a car, as SUMO's cars do, and the lane-drop case when no change
-began any more near the start of an edge nothing leads onto: a change of behaviour on purpose
+began any more near the start of an edge nothing leads onto, and both traffic-driver cases when
+overtakers came to want 1.02-1.12 of the limit and keepers to keep even the fast-most lane: a
+change of behaviour on purpose
 is a new recording, in the same commit)."""
 
 

@@ -1201,7 +1201,7 @@ def test_overtakers_pass_a_slower_leader_unasked_and_keepers_only_a_much_slower_
     waits = drive_lanes([0.0] * 8, lateral=ruled, leaders=slower, behaviour="overtaker")[:, 4]
     assert not waits[:4].any() and waits[-1] == 1  # after its patience (1 s), and not to the right first
     assert set(drive_lanes([1.0] * 10, lateral=ruled, leaders=slower, behaviour="keeper")[:, 4]) == {0}
-    truck = leaders_of(lead=(0, 40.0, 22.0))  # 8 m/s slower
+    truck = leaders_of(lead=(0, 30.0, 20.0))  # 10 m/s slower
     assert set(drive_lanes([0.0] * 10, lateral=ruled, leaders=truck, behaviour="keeper")[:, 4]) == {0}
     asked = drive_lanes([1.0] * 100, lateral=ruled, leaders=truck, behaviour="keeper")
     slowed = np.flatnonzero(asked[:, 5] < 30.0 - ruled.keeper_pass_margin)[0]
@@ -1212,11 +1212,11 @@ def test_overtakers_pass_a_slower_leader_unasked_and_keepers_only_a_much_slower_
     assert no_better[:, 4].max() <= 0  # no move to the fast side (it keeps right into the free lane)
 
 
-def test_keepers_keep_their_lane_but_the_fast_most_one_and_only_the_rules_move_a_car_right():
+def test_keepers_keep_their_lane_even_the_fast_most_one_and_only_the_rules_move_a_car_right():
     ruled = LaneDriving()
     for behaviour, lane, wish, moves in [
-        ("keeper", 1, 0.0, False), ("keeper", 1, -1.0, False), ("keeper", 2, 0.0, True),
-        ("overtaker", 1, 0.0, True),
+        ("keeper", 1, 0.0, False), ("keeper", 1, -1.0, False), ("keeper", 2, 0.0, False),
+        ("overtaker", 1, 0.0, True), ("overtaker", 2, 0.0, True),
     ]:  # fmt: skip
         run = drive_lanes([wish] * 40, lateral=ruled, lane=lane, behaviour=behaviour)
         assert (run[-1, 0] < lane) == moves, (behaviour, lane, wish)
