@@ -640,8 +640,8 @@ def lateral_profile(
 class LaneHabits:
     """How each agent uses the lanes, beyond the rules every car keeps: its driving behaviour."""
 
-    keeps_right: np.ndarray  # [N] bool: moves to a free slow-side lane unasked (the law's keep-right)
-    passes: np.ndarray  # [N] bool: held up, moves to the fast side unasked
+    overtakes: np.ndarray  # [N] bool: held up, moves to the fast side unasked, and back to a free
+    # slow-side lane after (the law's keep-right); the others keep their lane
     pass_margin: np.ndarray  # [N] m/s: a leader this much slower than the car wants is a reason to pass
     patience: np.ndarray  # [N] s: held up this long before it passes
 
@@ -693,8 +693,8 @@ def actuate_lanes(
     the result is atan(lateral speed / speed). A car that heads for a neighbour lane also
     follows that lane's leader, as a driver who moves over does. No change begins where
     `may_begin` [N] bool is false (None: everywhere). `habits` (None: all keep right, pass as
-    `lateral` says and go to the slow side when the policy asks) tell who keeps right and who
-    passes a slower leader unasked; with them, only the rules move a car to the slow side;
+    `lateral` says and go to the slow side when the policy asks) tell who passes a slower leader
+    unasked and keeps right after; with them, only the rules move a car to the slow side;
     `far_fast_leader` ([N] gap, [N] speed; None: none) is the nearest leader in a lane beyond the
     fast-side one, which is not passed on its slow side either; `held_for` [N] (None: 0) the
     seconds each car has been held up so far, which its habits' patience must reach before it
@@ -721,17 +721,17 @@ def actuate_lanes(
     acceptable = gap_acceptable(traffic, lateral, leaving, lane_followers) & lanes_go_on
     free = slow_side_free(traffic, lateral, lane_leads_on) if lateral.keep_right else None
     if free is not None and habits is not None:
-        free &= habits.keeps_right
-    margin, patient = (None, None) if habits is None else (habits.pass_margin, ~habits.passes)
+        free &= habits.overtakes
+    margin, patient = (None, None) if habits is None else (habits.pass_margin, ~habits.overtakes)
     held = held_up(traffic, lateral, margin, patient) if lateral.keep_right else None
     waited = np.zeros(len(steer))
     if held is not None:
         waited = np.where(held, (0.0 if held_for is None else held_for) + dt, 0.0)
     if habits is not None and held is not None:  # the slow side is the rules' alone
         if free is not None:  # waiting to pass is no time to move right
-            free &= ~(held & habits.passes)
+            free &= ~held
         held = held & (waited >= habits.patience - 1e-9)
-        steer = np.where(habits.passes & held, 1.0, np.maximum(steer, 0.0))
+        steer = np.where(habits.overtakes & held, 1.0, np.maximum(steer, 0.0))
     heading = lane_intent(
         steer,
         changing,

@@ -331,7 +331,7 @@ class TrafficDriver:
         ruled = self.lateral
         margin = np.where(overtaker, ruled.pass_margin, ruled.keeper_pass_margin)
         patience = np.where(overtaker, ruled.patience, ruled.keeper_patience)
-        return LaneHabits(overtaker, overtaker, margin, patience)
+        return LaneHabits(overtaker, margin, patience)
 
     def may_begin(self, fleet: Fleet) -> np.ndarray:
         """[N] bool: where an agent may begin a lane change: not inside a junction (its lanes are a
