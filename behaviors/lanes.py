@@ -142,7 +142,8 @@ def lane_coordinates(
     the point is projected onto the polyline itself: a car in the same lane beyond a vertex
     where the road turns 12 degrees stays in that lane. Beyond the lane's end the car's lane
     goes on as the lane it leads into, where that is one (`RoadGeometry.lane_next`: through the
-    junction and into the next edge), else with the end's curvature. A segment is
+    junction and into the next edge), else with the end's curvature; behind its start, as the
+    lane a car came on from, where that is one (`RoadGeometry.lane_prev`). A segment is
     straight, so a projection that stays on the car's own segment is exact at once; only the
     others (beyond a vertex, off the lane's ends) are projected once more, unless the lane is one
     straight segment, which goes on straight.
@@ -164,73 +165,55 @@ def lane_coordinates(
             k = np.flatnonzero(beyond)
             own, target = pairs[k], front[pairs[k]] + offset[k]
             along[k], across[k] = _project(geometry, lane_row[own], shape_pos[own], target, along[k])
-    leads_into = geometry.lane_next_departs(lane_row)
-    if leads_into.any():
-        to_end = geometry.lane_shape_length[lane_row] - shape_pos
-        past = np.flatnonzero(leads_into[pairs] & (along > to_end[pairs]))
-        if len(past):
-            target = front[pairs[past]] + offset[past]
-            along[past], across[past] = _along_next_lanes(
-                geometry, lane_row[pairs[past]], to_end[pairs[past]], target, along[past]
-            )
-    comes_from = geometry.lane_prev_departs(lane_row)
-    if comes_from.any():
-        before = np.flatnonzero(comes_from[pairs] & (along < -shape_pos[pairs]))
-        if len(before):
-            target = front[pairs[before]] + offset[before]
-            along[before], across[before] = _along_previous_lanes(
-                geometry, lane_row[pairs[before]], shape_pos[pairs[before]], target, along[before]
+    for ahead in (True, False):  # beyond the lane's end, then behind its start
+        departs = geometry.lane_next_departs if ahead else geometry.lane_prev_departs
+        chained = departs(lane_row)
+        if not chained.any():
+            continue
+        edge = geometry.lane_shape_length[lane_row] - shape_pos if ahead else -shape_pos
+        outside = along > edge[pairs] if ahead else along < edge[pairs]
+        k = np.flatnonzero(chained[pairs] & outside)
+        if len(k):
+            target = front[pairs[k]] + offset[k]
+            along[k], across[k] = _along_chained_lanes(
+                geometry, lane_row[pairs[k]], edge[pairs[k]], target, along[k], ahead
             )
     return along, across
 
 
-def _along_previous_lanes(
-    geometry: RoadGeometry, lane_row: np.ndarray, shape_pos: np.ndarray, target: np.ndarray, along: np.ndarray
+def _along_chained_lanes(
+    geometry: RoadGeometry,
+    lane_row: np.ndarray,
+    edge: np.ndarray,
+    target: np.ndarray,
+    along: np.ndarray,
+    ahead: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(along, across) of `target`s behind the start (`shape_pos` metres behind the car) of lanes a car
-    came on from one lane: measured along that lane, and the one before it, as the car came.
-    Extrapolating the own lane's start back misplaced a car behind where the lanes shift sideways
-    through a junction: on `motorway4`, past the lanes the on-ramp adds, a car coming up at 28 m/s in
-    the lane that leads into the fast-side lane read as two lanes over, and an agent moved out in
-    front of it at 7 m/s."""
+    """(along, across) of `target`s beyond the end of lanes that lead into one lane (`ahead`) or
+    behind the start of lanes a car came on from one lane (`edge`: metres from the car to that end
+    or start, negative behind): measured along the lanes that chain on from there (`lane_next`,
+    `lane_prev`), as the car will drive or came. Extrapolating the own lane misplaced cars where
+    the lanes shift sideways through a junction: at a lane drop, the queue in the lane ahead read
+    as the slow-side lane's; on `motorway4`, past the lanes the on-ramp adds, a car coming up at 28
+    m/s in the lane that leads into the fast-side lane read as two lanes over, and an agent moved
+    out in front of it at 7 m/s."""
+    chain, sign = (geometry.lane_next, 1.0) if ahead else (geometry.lane_prev, -1.0)
     out_along, out_across = along.copy(), np.zeros(len(along))
     todo = np.arange(len(along))
-    row, start, before = lane_row, -shape_pos, along + shape_pos  # before: metres before that start
+    row, past = lane_row, along - edge  # metres past the edge, signed as `along`
     for hop in range(NEXT_LANES_SEEN):
-        row = geometry.lane_prev[row]
+        row = chain[row]
         length = geometry.lane_shape_length[row]
-        at, across = _project(geometry, row, np.zeros(len(row)), target, length + before)
-        further = (at < 0.0) & (geometry.lane_prev[row] >= 0) & (hop + 1 < NEXT_LANES_SEEN)
+        # where on this lane the chain comes in (near) and goes on (far)
+        near, far = (np.zeros(len(row)), length) if ahead else (length, np.zeros(len(row)))
+        at, across = _project(geometry, row, np.zeros(len(row)), target, near + past)
+        past = at - far
+        further = (sign * past > 0.0) & (chain[row] >= 0) & (hop + 1 < NEXT_LANES_SEEN)
         done = ~further
-        out_along[todo[done]] = start[done] - (length[done] - at[done])
+        out_along[todo[done]] = (edge + (at - near))[done]
         out_across[todo[done]] = across[done]
         todo, row, target = todo[further], row[further], target[further]
-        start, before = start[further] - length[further], at[further]
-        if not len(todo):
-            break
-    return out_along, out_across
-
-
-def _along_next_lanes(
-    geometry: RoadGeometry, lane_row: np.ndarray, to_end: np.ndarray, target: np.ndarray, along: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """(along, across) of `target`s beyond the end (`to_end` metres ahead of the car) of lanes that
-    lead into one lane: measured along that lane, and the one after it, as the car will drive
-    (extrapolating the own lane's end misplaced a car ahead where the lanes shift sideways through
-    a junction: at a lane drop, the queue in the lane ahead read as the slow-side lane's)."""
-    out_along, out_across = along.copy(), np.zeros(len(along))
-    todo = np.arange(len(along))
-    row, start, guess = lane_row, to_end, along - to_end
-    for hop in range(NEXT_LANES_SEEN):
-        row = geometry.lane_next[row]
-        ahead, across = _project(geometry, row, np.zeros(len(row)), target, guess)
-        length = geometry.lane_shape_length[row]
-        further = (ahead > length) & (geometry.lane_next[row] >= 0) & (hop + 1 < NEXT_LANES_SEEN)
-        done = ~further
-        out_along[todo[done]] = start[done] + ahead[done]
-        out_across[todo[done]] = across[done]
-        todo, row, target = todo[further], row[further], target[further]
-        start, guess = start[further] + length[further], ahead[further] - length[further]
+        edge, past = (edge + (far - near))[further], past[further]
         if not len(todo):
             break
     return out_along, out_across
