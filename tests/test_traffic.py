@@ -272,18 +272,24 @@ def test_neighbours_beyond_the_end_of_a_curved_lane_stay_in_their_lanes():
     assert around.gap[0, 4] == pytest.approx(expected, abs=1.5)  # the outer lane is lane 0 here
 
 
-def shifting_junction(linked: bool) -> RoadGeometry:
-    """Two 3.5 m lanes along +x to x = 300, a 20 m junction, and two lanes on, the lane ahead of the
-    left one (a_1) one lane further right: a_1 leads into b_0, as at a lane drop's merge."""
+def junction_road(via: list, lanes_after: int, lane_next: list[tuple[str, str]]) -> RoadGeometry:
+    """Two 3.5 m lanes along +x to x = 300 (a_0, a_1), a 20 m junction of lanes `via`, and
+    `lanes_after` lanes on to x = 800 (b_k), linked lane to lane by `lane_next`."""
     a = [(f"a_{k}", [(0.0, 3.5 * k), (300.0, 3.5 * k)], 3.5, 33.3, 300.0) for k in range(2)]
+    b = [(f"b_{k}", [(320.0, 3.5 * k), (800.0, 3.5 * k)], 3.5, 33.3, 480.0) for k in range(lanes_after)]
+    edges = [("a", a, True), (":j", via, False), ("b", b, True)]
+    return build_geometry(edges, [("a", "b")], car_links=[("a", "b")], lane_next=lane_next)
+
+
+def shifting_junction(linked: bool) -> RoadGeometry:
+    """Two lanes on after the junction, the lane ahead of the left one (a_1) one lane further
+    right: a_1 leads into b_0, as at a lane drop's merge."""
     via = [
         (":j_0", [(300.0, 3.5), (320.0, 0.0)], 3.5, 33.3, 20.3),
         (":j_1", [(300.0, 0.0), (320.0, 0.0)], 3.5, 33.3, 20.0),
     ]
-    b = [(f"b_{k}", [(320.0, 3.5 * k), (800.0, 3.5 * k)], 3.5, 33.3, 480.0) for k in range(2)]
     lane_next = [("a_1", ":j_0"), (":j_0", "b_0"), ("a_0", ":j_1"), (":j_1", "b_0")] if linked else []
-    edges = [("a", a, True), (":j", via, False), ("b", b, True)]
-    return build_geometry(edges, [("a", "b")], car_links=[("a", "b")], lane_next=lane_next)
+    return junction_road(via, 2, lane_next)
 
 
 @pytest.mark.parametrize("linked", [True, False])
@@ -317,14 +323,11 @@ def test_a_car_ahead_beyond_a_junction_is_placed_in_the_lane_its_own_lane_leads_
 
 
 def widening_junction(linked: bool) -> RoadGeometry:
-    """Two 3.5 m lanes along +x to x = 300, a 20 m junction, and three lanes on: a ramp's lane
-    joins on the right (b_0), so a_0 leads into b_1 and a_1 into b_2, each one lane further left."""
-    a = [(f"a_{k}", [(0.0, 3.5 * k), (300.0, 3.5 * k)], 3.5, 33.3, 300.0) for k in range(2)]
+    """Three lanes on after the junction: a ramp's lane joins on the right (b_0), so a_0 leads into
+    b_1 and a_1 into b_2, each one lane further left."""
     via = [(f":j_{k}", [(300.0, 3.5 * k), (320.0, 3.5 * (k + 1))], 3.5, 33.3, 20.3) for k in range(2)]
-    b = [(f"b_{k}", [(320.0, 3.5 * k), (800.0, 3.5 * k)], 3.5, 33.3, 480.0) for k in range(3)]
     lane_next = [("a_0", ":j_0"), (":j_0", "b_1"), ("a_1", ":j_1"), (":j_1", "b_2")] if linked else []
-    edges = [("a", a, True), (":j", via, False), ("b", b, True)]
-    return build_geometry(edges, [("a", "b")], car_links=[("a", "b")], lane_next=lane_next)
+    return junction_road(via, 3, lane_next)
 
 
 @pytest.mark.parametrize("linked", [True, False])
