@@ -249,9 +249,13 @@ class RoadGeometry:
 
     def _departing(self, rows: np.ndarray, ahead: bool) -> np.ndarray:
         known = self._departs_known[ahead]
-        for row in np.unique(rows[known[rows] < 0]).tolist():
-            known[row] = self._departs(row, ahead)
-        return known[rows] == 1
+        flags = known[rows]
+        unknown = flags < 0
+        if unknown.any():  # lanes not asked for before: in a few steps of a run; then one gather
+            for row in np.unique(rows[unknown]).tolist():
+                known[row] = self._departs(row, ahead)
+            flags = known[rows]
+        return flags == 1
 
     def _departs(self, row: int, ahead: bool) -> bool:
         """Whether the lanes after one lane's end (`ahead`) or before its start leave the line that
