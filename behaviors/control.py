@@ -159,6 +159,11 @@ class Driver(Protocol):
 
     name: str
 
+    @property
+    def max_lateral_speed(self) -> float:
+        """m/s: the fastest sideways move it makes, which SUMO is told (`SimOptions.agent_max_speed_lat`)."""
+        ...
+
     def new_rows(self, count: int, desired_fraction: np.ndarray | None) -> Any:
         """Its own per-agent rows for `count` new agents (None if it keeps none)."""
         ...

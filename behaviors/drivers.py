@@ -15,7 +15,7 @@ from typing import Any, ClassVar
 import numpy as np
 from gymnasium import spaces
 
-from behaviors.actuation import Actuation, LaneDriving, LaneHabits, actuate, actuate_lanes
+from behaviors.actuation import Actuation, CarModel, LaneDriving, LaneHabits, actuate, actuate_lanes
 from behaviors.control import Fleet, Observed, Sensing, road_frame
 from behaviors.errors import BehaveError
 from behaviors.handover import (
@@ -65,6 +65,8 @@ class PaperDriver:
     heading model: steer turns a heading of the car's own (actuation.actuate)."""
 
     name = "paper"
+    max_lateral_speed = CarModel.max_lateral_speed
+    """m/s: its steer moves a car sideways up to the vTypes' maxSpeedLat."""
     among_traffic = False
     """Trains in the paper's formations on the bundled roads (paper_env.PaperEnv), not among traffic."""
     reward_scale = 0.01
@@ -167,6 +169,11 @@ class TrafficDriver:
     def __init__(self, lateral: LaneDriving | None = None) -> None:
         self.lateral = LaneDriving() if lateral is None else lateral
         self._one_lane_at: dict[tuple[str, int], float] = {}  # (route, index) -> `_one_lane_road_at`
+
+    @property
+    def max_lateral_speed(self) -> float:
+        """m/s: its lane changes' top sideways speed."""
+        return self.lateral.max_lateral_speed
 
     def obs_size(self, with_id: bool) -> int:
         return TRAFFIC_OBS_SIZE

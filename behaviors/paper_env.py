@@ -193,7 +193,9 @@ class PaperEnv(BehaveEnv):
             vids.append(vid)
             types.append(is_agent)
         agent_ids = [v for v, a in zip(vids, types, strict=True) if a]
-        if not cfg.sumo_drives:
+        if cfg.sumo_drives:
+            sim.react_every_step(agent_ids)
+        else:
             sim.take_control(agent_ids)
         sim.step()
         missing = set(vids) - set(sim.vehicle_ids())

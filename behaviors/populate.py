@@ -470,7 +470,8 @@ class Population:
         routes = (c.routes,) if c.routes else ()
         fcd = () if fcd_tmp is None else tuple(fcd_options(fcd_tmp, geo=c.geo))
         options = SimOptions(net=c.net, additional=(VTYPES,), routes=routes, step_length=c.step_length,
-                             seed=c.seed, extra=fcd, gui=c.gui)  # fmt: skip
+                             seed=c.seed, extra=fcd, gui=c.gui,
+                             agent_max_speed_lat=self.fleet.driver.max_lateral_speed)  # fmt: skip
         if scenario is not None:
             options = run_as_sumocfg(options, scenario)
         else:  # a sumocfg keeps its own begin time; a net starts at 0

@@ -35,6 +35,7 @@ class ScenarioConfig:
     end: float | None = None
     step_length: float | None = None
     lateral_resolution: float | None = None
+    ballistic: bool = False  # step-method.ballistic
 
     @property
     def duration(self) -> float | None:
@@ -68,6 +69,7 @@ def read_sumocfg(path: Path) -> ScenarioConfig:
         end=seconds(path, values, "end"),
         step_length=seconds(path, values, "step-length"),
         lateral_resolution=number(path, values, "lateral-resolution"),
+        ballistic=flag(path, values, "step-method.ballistic"),
     )
 
 
@@ -95,6 +97,21 @@ def number(config: Path, values: dict[str, str], name: str) -> float | None:
     if not NUMBER.fullmatch(text):
         raise BehaveError(f"sumocfg {config}: {name} must be a number, got '{text}'")
     return float(text)
+
+
+TRUE_WORDS = ("1", "yes", "true", "on", "x", "t")
+FALSE_WORDS = ("0", "no", "false", "off", "-", "f")
+"""The spellings of a yes/no option that SUMO reads (in any case)."""
+
+
+def flag(config: Path, values: dict[str, str], name: str) -> bool:
+    """A yes/no option of the sumocfg, False if not set."""
+    text = values.get(name, "").strip().lower()
+    if text in TRUE_WORDS:
+        return True
+    if text in FALSE_WORDS or not text:
+        return False
+    raise BehaveError(f"sumocfg {config}: {name} must be true or false, got '{values[name]}'")
 
 
 def seconds(config: Path, values: dict[str, str], name: str) -> float | None:
@@ -127,5 +144,6 @@ def run_as_sumocfg(options: SimOptions, scenario: ScenarioConfig) -> SimOptions:
         additional=(*scenario.additional, *options.additional),
         routes=(*scenario.routes, *options.routes),
         lateral_resolution=scenario.lateral_resolution or LATERAL_RESOLUTION,
+        ballistic=scenario.ballistic,
         extra=("--configuration-file", str(scenario.path), *options.extra),
     )

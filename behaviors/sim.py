@@ -26,7 +26,14 @@ import numpy as np
 
 from behaviors.errors import BehaveError
 from behaviors.sumo_home import sumo_binary
-from sumo_scenarios.build import AGENT_LC_ACCEL_LAT, PASSENGER_DECEL, SUMO_LC_ACCEL_LAT, SUMO_MAX_SPEED_LAT
+from sumo_scenarios.build import (
+    AGENT_ACTION_STEP,
+    AGENT_LC_ACCEL_LAT,
+    AGENT_VTYPES,
+    PASSENGER_DECEL,
+    SUMO_LC_ACCEL_LAT,
+    SUMO_MAX_SPEED_LAT,
+)
 
 COLLISION_OPTIONS = (
     "--collision.action",
@@ -57,6 +64,15 @@ class SimOptions:
     seed: int = 0
     extra: tuple[str, ...] = field(default_factory=tuple)
     gui: bool = False  # run in sumo-gui, driven over TraCI (see sumo_api)
+    agent_max_speed_lat: float | None = None
+    """m/s: the agents' vTypes' maxSpeedLat in this run, the fastest sideways move their driver makes
+    (None: the vTypes' own 5 m/s, the paper driver's). SUMO's cars judge a lane-changing agent's
+    reach by it: at 5 m/s it reserved room in the next lane one action step (`AGENT_ACTION_STEP`)
+    of 5 m/s further over, where the traffic driver moves at most 1.2 m/s."""
+    ballistic: bool = False
+    """SUMO's position update: Euler (SUMO's default) unless a sumocfg asks for the ballistic one.
+    Always given: SUMO turns to the ballistic update by itself once a vType sets an
+    actionStepLength, as the agents' do (`AGENT_ACTION_STEP`), and every car would move otherwise."""
 
     def command(self) -> list[str]:
         cmd = [
@@ -75,6 +91,8 @@ class SimOptions:
             "true",
             "--duration-log.disable",
             "true",
+            "--step-method.ballistic",
+            "true" if self.ballistic else "false",
             *COLLISION_OPTIONS,
         ]
         if self.additional:
@@ -184,6 +202,7 @@ class SumoSim:
             raise sumo_error(exc, options, "could not start") from None
         self._closer = weakref.finalize(self, _stop, libsumo)
         self.step_length = options.step_length
+        self._set_agent_vtypes(options)
         self._last = VehicleState((), np.zeros((0, 2)), np.zeros(0), np.zeros(0), {})
 
     def __enter__(self) -> SumoSim:
@@ -197,7 +216,13 @@ class SumoSim:
         self._sumo.load(options.command()[1:])
         self.options = options
         self.step_length = options.step_length
+        self._set_agent_vtypes(options)
         self.__dict__.pop("has_signals", None)  # another net: ask again
+
+    def _set_agent_vtypes(self, options: SimOptions) -> None:
+        if options.agent_max_speed_lat is not None:
+            for vtype in AGENT_VTYPES:
+                self._sumo.vehicletype.setMaxSpeedLat(vtype, options.agent_max_speed_lat)
 
     def close(self) -> None:
         """Stop SUMO (once; closing again is harmless) and let another simulation start."""
@@ -351,7 +376,8 @@ class SumoSim:
 
     def hand_to_sumo(self, ids: Sequence[str]) -> None:
         """SUMO's own driver takes these agents (default speed and lane-change modes), with the
-        lateral comfort of SUMO's drivers (1 m/s^2, 1 m/s) instead of the agents' exact moves and
+        lateral comfort of SUMO's drivers (1 m/s^2, 1 m/s) instead of the agents' exact moves, their
+        reaction at every step instead of the agents' vType's once a second (`AGENT_ACTION_STEP`), and
         a passenger car's braking (`PASSENGER_DECEL`: braking at the policy's 7.5 there, agents were run
         into from behind by followers who kept room for 4.5).
         SUMO holds those limits in a copy of the car's vType, `TYPE@id`, which FCD shows while
@@ -368,6 +394,15 @@ class SumoSim:
             v.setParameter(vid, "laneChangeModel.lcAccelLat", f"{SUMO_LC_ACCEL_LAT:g}")
             v.setMaxSpeedLat(vid, SUMO_MAX_SPEED_LAT)
             v.setDecel(vid, PASSENGER_DECEL)  # as its vType shows followers (apparentDecel): no harder
+            v.setActionStepLength(vid, self.step_length, True)  # reacts at every step, as SUMO's cars
+
+    def react_every_step(self, ids: Sequence[str]) -> None:
+        """SUMO's driver of these agent-typed cars works its plans out at every step, as for its own
+        cars, not once a second as the agents' vType has it (`AGENT_ACTION_STEP`): SUMO's baseline
+        drives them so (`behave evaluate --baseline sumo`). SUMO keeps the change in a copy of the
+        car's vType, `TYPE@id`."""
+        for vid in ids:
+            self._sumo.vehicle.setActionStepLength(vid, self.step_length, True)
 
     def take_back(self, ids: Sequence[str]) -> None:
         """The policy drives again: its own vType back in place of SUMO's copy (so FCD tells who
@@ -406,8 +441,13 @@ class SumoSim:
         """An agent's vType for a car SUMO inserted with another: SUMO builds a car's lane-change
         model once, from the vType it departs with, and `setType` leaves it, so the agents' lcAccelLat
         is set on the car itself (with a scenario's default of 1, SUMO carried out the policy's
-        sideways moves at about 0.5 m/s, and a lane change took 9-10 s instead of 5)."""
+        sideways moves at about 0.5 m/s, and a lane change took 9-10 s instead of 5).
+
+        First the agents' action step, with an action point in the coming step: a car SUMO was
+        moving sideways carries SUMO's move on until its next action point, which the agents' type
+        alone would put up to a second away (a policy's 0.3 m became 0.54 after a hand-back)."""
         v = self._sumo.vehicle
+        v.setActionStepLength(vid, AGENT_ACTION_STEP, True)
         v.setType(vid, vtype)
         v.setParameter(vid, "laneChangeModel.lcAccelLat", f"{AGENT_LC_ACCEL_LAT:g}")
 

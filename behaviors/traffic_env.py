@@ -13,11 +13,12 @@ behaviour id and their desired speed.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from behaviors.drivers import make_driver
 from behaviors.env_core import (
     BACKGROUND_TYPE,
     KEEPER_TYPE,
@@ -240,7 +241,9 @@ class TrafficEnv(BehaveEnv):
         return self.live_obs
 
     def _start_sim(self, options: SimOptions) -> SumoSim:
-        """SUMO started, or restarted (libsumo keeps one simulation per process), with `options`."""
+        """SUMO started, or restarted (libsumo keeps one simulation per process), with `options`
+        and the agents' sideways speed as their driver moves them."""
+        options = replace(options, agent_max_speed_lat=make_driver(self.config.driver).max_lateral_speed)
         if self.sim is None:
             self.sim = SumoSim(options)
         else:

@@ -214,13 +214,23 @@ SUMO_LC_ACCEL_LAT = 1.0
 (`SumoSim.hand_to_sumo`)."""
 SUMO_MAX_SPEED_LAT = 1.0
 """m/s: SUMO's default maxSpeedLat, likewise."""
+AGENT_VTYPES = ("behave_keeper", "behave_overtaker")
+"""The vTypes of the learned cars (keepers and overtakers)."""
+AGENT_ACTION_STEP = 1.0
+"""s: how often SUMO works out its own driver's plans for an agent (its vType's actionStepLength).
+The policy drives (speed and lane-change modes 0), so those plans go unused; the policy's speed
+and sideways move still take effect at every step, between action points too (tests/test_traffic.py).
+Worked out at every 0.2 s step, SUMO's car following and lane changing for 1,000 agents took a
+third of its step (26 -> 16 ms, docs/benchmarks.md). `SumoSim.hand_to_sumo` gives an agent SUMO's
+every-step reaction back. Such a vType turns SUMO to the ballistic update: see `SimOptions.ballistic`."""
 
 
 def write_vtypes(path: Path) -> None:
     """The project's vehicle types, shared by every scenario.
 
     Agents get a huge lcAccelLat so `changeSublane(v, d)` moves exactly d metres in one step,
-    and sigma 0 because the policy (not Krauss) drives. Their decel (7.5 m/s^2, the policy's full
+    sigma 0 because the policy (not Krauss) drives, and SUMO's plans for them once a second
+    (`AGENT_ACTION_STEP`). Their decel (7.5 m/s^2, the policy's full
     brake) is what SUMO's followers would keep room for, so `apparentDecel` shows them SUMO's
     passenger car's 4.5: behind an agent SUMO's cars kept a gap twice their own, and half-learned
     traffic carried a tenth less than either fleet alone.
@@ -243,6 +253,7 @@ def write_vtypes(path: Path) -> None:
         "lcAccelLat": f"{AGENT_LC_ACCEL_LAT:g}",
         "maxSpeedLat": "5",
         "latAlignment": "center",
+        "actionStepLength": f"{AGENT_ACTION_STEP:g}",
     }
     sumo_driven = {
         "vClass": "passenger",
@@ -254,8 +265,8 @@ def write_vtypes(path: Path) -> None:
     }
     root = ET.Element("additional")
     # attributes as one dict: typeshed's SubElement would match a `**dict` to its `attrib` parameter too
-    ET.SubElement(root, "vType", {"id": "behave_keeper", "color": "0,200,0", **agent})
-    ET.SubElement(root, "vType", {"id": "behave_overtaker", "color": "230,120,0", **agent})
+    for vtype, color in zip(AGENT_VTYPES, ("0,200,0", "230,120,0"), strict=True):
+        ET.SubElement(root, "vType", {"id": vtype, "color": color, **agent})
     passive = {"maxSpeed": "20", "speedFactor": "1", "speedDev": "0", "sigma": "0"}
     ET.SubElement(root, "vType", {"id": "behave_passive", "color": "0,0,255", **passive, **sumo_driven})
     background = {"sigma": "0.5", "speedFactor": "norm(1,0.1)"}

@@ -145,6 +145,24 @@ def test_cars_on_roads_without_agents_drive_exactly_as_in_plain_sumo(tmp_path):
     pd.testing.assert_frame_equal(ours, theirs)
 
 
+def test_a_sumocfg_asking_for_the_ballistic_update_runs_with_it(tmp_path):
+    """behave states the position update on SUMO's command line (its agents' vTypes would turn SUMO
+    to the ballistic one by themselves), so it must pass on the sumocfg's own choice."""
+    cfg = roads_scenario(tmp_path, roads=2, end=30.0)
+    cfg.write_text(
+        cfg.read_text().replace(
+            "</time>", '</time><processing><step-method.ballistic value="on"/></processing>'
+        )
+    )
+    assert read_sumocfg(cfg).ballistic
+    ours = run_share(tmp_path, cfg, 0.0, seed=3)
+    plain = plain_sumo_fcd(cfg, tmp_path / "plain.xml", seed=3)
+    pd.testing.assert_frame_equal(ours.reset_index(drop=True), plain.reset_index(drop=True))
+    cfg.write_text(cfg.read_text().replace('value="on"', 'value="maybe"'))
+    with pytest.raises(BehaveError, match=r"step-method\.ballistic must be true or false, got 'maybe'"):
+        read_sumocfg(cfg)
+
+
 def test_sumocfg_options_hold_and_paths_resolve_against_its_folder(tmp_path):
     cfg = roads_scenario(tmp_path, roads=1, end=90.0)
     scenario = read_sumocfg(cfg)

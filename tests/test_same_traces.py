@@ -75,9 +75,9 @@ def sha256(path: Path) -> str:
 
 
 RECORDED = {
-    "highway_traffic": "329b23915379751cf503094bbbb31848bcad624d8af1c2d0a37dcbe4e86e0b73",
-    "highway_paper": "357ab8c99315bc4115ad846f45422bc7474499c6b7343aee7b6a177dba96291a",
-    "share_lanedrop": "46fd5c33e16d64d30733f92a8d4249ec31533746833b6a3bbbdd9c45602898c3",
+    "highway_traffic": "27cfdb0b59fbb878ced03f6c478f86d47c795c19614bbcd872e29394f363f141",
+    "highway_paper": "5a431bf7749e8e20c0e9c94547cca5b3f0ebeece52ea9cc9e31f92bfcca41a27",
+    "share_lanedrop": "d4f1ecdf73841c6fdc3a3779d005bbf37143e03947bfb00071f1377db5c96506",
 }
 """sha256 of each case's FCD (csv), recorded on the code before the driver became one object (the
 traffic case again when lane changes began to wait for an acceptable gap, and both traffic-driver
@@ -95,9 +95,12 @@ that SUMO moves it sideways as the driver asks, and again when sensing began to 
 through a junction into the lane it leads into, and both traffic-driver cases when the car-following
 law began to stand 2.5 m behind a car, as SUMO's cars do, and the lane-drop case when no change
 began any more near the start of an edge nothing leads onto, and both traffic-driver cases when
-overtakers came to want 1.02-1.12 of the limit and keepers to keep even the fast-most lane: a
-change of behaviour on purpose
-is a new recording, in the same commit)."""
+overtakers came to want 1.02-1.12 of the limit and keepers to keep even the fast-most lane, and all
+three when SUMO came to work out its own plans for an agent once a second instead of every step
+(the agents' moves are as before, but SUMO puts an agent in at a speed safe for a second's
+reaction, and draws fewer random numbers, so its own cars dawdle differently; SUMO's position
+update is given as Euler, since such vTypes turn SUMO to the ballistic one by themselves): a change of
+behaviour on purpose is a new recording, in the same commit)."""
 
 
 def run_case(case: str, tmp_path: Path) -> Path:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import subprocess
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +27,7 @@ from behaviors.actuation import (
     slow_side_free,
 )
 from behaviors.control import Fleet, moves_to_send
-from behaviors.drivers import TrafficDriver, make_driver
+from behaviors.drivers import PaperDriver, TrafficDriver, make_driver
 from behaviors.env import make_env
 from behaviors.geometry import RoadGeometry, build_geometry, load_geometry
 from behaviors.handover import HANDOVER_DISTANCE, LaneEnds, straddling_an_ending_lane
@@ -48,6 +49,7 @@ from behaviors.sumo_home import sumo_binary
 from behaviors.timing import PhaseTimer
 from behaviors.traffic_env import CRAWL_CARS, CRAWL_GAP, CRAWL_SPEED, queue_places
 from sumo_scenarios import get_scenario
+from sumo_scenarios.build import AGENT_ACTION_STEP, AGENT_VTYPES
 from sumo_scenarios.osm_like import build_osm_like
 
 
@@ -1183,6 +1185,80 @@ def test_an_agent_given_back_has_its_own_vtype_and_exact_sideways_moves_again(tm
         sim.command_agents(["agent"], np.array([25.0]), np.array([0.3]))
         sim.step()
         assert float(sim.read_agents(["agent"]).lateral_pos[0]) - before == pytest.approx(0.3, abs=1e-6)
+
+
+def test_every_step_takes_the_commanded_speed_and_sideways_move_between_sumos_action_points_too(tmp_path):
+    """SUMO works out its own plans for an agent once a second (`AGENT_ACTION_STEP`, five steps),
+    but the policy's speed and sideways move must take effect at every step: the speed exactly,
+    the move to a micrometre, in the steps between SUMO's action points as in those on them."""
+    speeds = [25.0, 26.5, 24.0, 24.0, 27.25, 20.0, 21.5, 23.0, 22.0, 19.5, 25.0, 26.0]
+    moves = [0.0, 0.3, -0.2, 0.0, 0.45, 0.0, -0.4, 0.1, 0.0, 0.25, -0.15, 0.0]
+    with keeper_on(exit_net(tmp_path), ["A", "B"], lane=1, pos=50.0, speed=25.0) as (sim, _):
+        assert sim._sumo.vehicle.getActionStepLength("agent") == AGENT_ACTION_STEP
+        for speed, move in zip(speeds, moves, strict=True):
+            before = sim.read_agents(["agent"])
+            sim.command_agents(["agent"], np.array([speed]), np.array([move]))
+            sim.step()
+            after = sim.read_agents(["agent"])
+            assert after.lane_id == before.lane_id
+            assert float(sim.read_speeds(["agent"])[0]) == speed
+            assert float(after.lateral_pos[0] - before.lateral_pos[0]) == pytest.approx(move, abs=1e-6)
+
+
+def test_sumo_is_told_the_traffic_drivers_top_sideways_speed_and_carries_its_fastest_move_out_whole(tmp_path):
+    """SUMO's cars judge a lane-changing agent's reach by its vType's maxSpeedLat: the traffic
+    driver's 1.2 m/s, not the vTypes' 5 (the paper driver's), after a restart too; and the driver's
+    fastest move, 0.24 m in a 0.2 s step, still happens whole in that step."""
+    speed_lat = TrafficDriver().max_lateral_speed
+    options = SimOptions(net=exit_net(tmp_path), additional=(get_scenario("tiny").vtypes,), step_length=0.2,
+                         agent_max_speed_lat=speed_lat)  # fmt: skip
+    with SumoSim(options) as sim:
+        for restart in (False, True):
+            if restart:
+                sim.restart(options)
+            assert [sim._sumo.vehicletype.getMaxSpeedLat(t) for t in AGENT_VTYPES] == [speed_lat] * 2
+        sim.add_route("route", ["A", "B"])
+        sim.add_vehicle("agent", "route", "behave_keeper", lane=1, pos=50.0, speed=25.0)
+        sim.step()
+        sim.take_control(["agent"])
+        for move in (speed_lat * 0.2, -speed_lat * 0.2):
+            before = float(sim.read_agents(["agent"]).lateral_pos[0])
+            sim.command_agents(["agent"], np.array([25.0]), np.array([move]))
+            sim.step()
+            assert float(sim.read_agents(["agent"]).lateral_pos[0]) - before == pytest.approx(move, abs=1e-6)
+    with SumoSim(replace(options, agent_max_speed_lat=None)) as sim:
+        assert sim._sumo.vehicletype.getMaxSpeedLat(AGENT_VTYPES[0]) == PaperDriver.max_lateral_speed == 5.0
+
+
+def test_sumo_reacts_at_every_step_for_an_agent_it_drives_and_once_a_second_once_given_back(tmp_path):
+    """Handed to SUMO, an agent reacts as SUMO's own cars do, at every step; given back, its
+    vType's action step is its own again."""
+    with keeper_on(exit_net(tmp_path), ["A", "B"], lane=1, pos=50.0, speed=25.0) as (sim, _):
+        sim.hand_to_sumo(["agent"])
+        assert sim._sumo.vehicle.getActionStepLength("agent") == pytest.approx(0.2)
+        sim.step()
+        sim.take_back(["agent"])
+        assert sim._sumo.vehicle.getActionStepLength("agent") == AGENT_ACTION_STEP
+
+
+def test_a_car_sumo_was_moving_sideways_takes_the_policys_first_move_exactly_once_it_is_an_agent(tmp_path):
+    """A scenario's car becomes an agent in the middle of SUMO's own sideways move: the policy's
+    first move must be all the car does, not SUMO's move carried on to its next action point."""
+    options = SimOptions(net=exit_net(tmp_path), additional=(get_scenario("tiny").vtypes,), step_length=0.2)
+    with SumoSim(options) as sim:
+        sim.add_route("route", ["A", "B"])
+        sim.add_vehicle("car", "route", "behave_background", lane=1, pos=50.0, speed=25.0)
+        sim.step()
+        sim._sumo.vehicle.changeSublane("car", 1.5)  # SUMO's lcAccelLat of 1: over several steps
+        sim.step()
+        sim.set_agent_type("car", "behave_keeper")
+        sim.take_control(["car"])
+        assert sim._sumo.vehicle.getTypeID("car") == "behave_keeper"
+        for move in (0.3, 0.0, -0.2):
+            before = float(sim.read_agents(["car"]).lateral_pos[0])
+            sim.command_agents(["car"], np.array([25.0]), np.array([move]))
+            sim.step()
+            assert float(sim.read_agents(["car"]).lateral_pos[0]) - before == pytest.approx(move, abs=1e-6)
 
 
 def test_the_policy_cannot_push_a_car_closer_than_the_minimum_headway():
