@@ -31,11 +31,11 @@ from behaviors.rewards import StepTerms, check_reward_weights
 from behaviors.sim import SumoSim, VehicleState
 from behaviors.timing import PhaseTimer
 from sumo_scenarios import SCENARIO_NAMES, Scenario, get_scenario
+from sumo_scenarios.build import AGENT_VTYPES
 
 BEHAVIOURS = ("lanekeeping", "overtaking", "multi")
 PLACEMENTS = ("A", "B", "C")
-KEEPER_TYPE = "behave_keeper"
-OVERTAKER_TYPE = "behave_overtaker"
+KEEPER_TYPE, OVERTAKER_TYPE = AGENT_VTYPES
 PASSIVE_TYPE = "behave_passive"
 BACKGROUND_TYPE = "behave_background"
 TRAINING_ROADS = "roads"
