@@ -620,7 +620,9 @@ def lateral_profile(
     the speed from which the target is reached decelerating at `arrival_decel`, capped at
     `max_lateral_speed` and at `max_slip` of the forward speed or `crawl_lateral_speed`, whichever is
     more (a car at walking pace edges over; at speed the slip bounds it), followed with acceleration
-    and jerk limits."""
+    and jerk limits. The acceleration carried to the next step is the comfort limit at most: where
+    the cap cuts the speed at once (a car SUMO gave back crawling, at SUMO's 0.9 m/s sideways, with
+    a reach of 0.3), the cut's -3 m/s^2 carried on swung the car the other way, off the road."""
     reach = np.minimum(
         lateral.max_lateral_speed, np.maximum(lateral.max_slip * speed, lateral.crawl_lateral_speed)
     )
@@ -633,7 +635,8 @@ def lateral_profile(
     jerk = lateral.max_lateral_jerk * dt
     accel = lateral_accel + np.clip(wanted - lateral_accel, -jerk, jerk)
     new_speed = np.clip(lateral_speed + accel * dt, -reach, reach)
-    return new_speed, (new_speed - lateral_speed) / dt
+    carried = np.clip((new_speed - lateral_speed) / dt, -lateral.max_lateral_accel, lateral.max_lateral_accel)
+    return new_speed, carried
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from behaviors.actuation import (
     gap_acceptable,
     lane_intent,
     lane_traffic,
+    lateral_profile,
     letting_in,
     look_ahead,
     slow_side_free,
@@ -1259,6 +1260,21 @@ def test_a_car_sumo_was_moving_sideways_takes_the_policys_first_move_exactly_onc
             sim.command_agents(["car"], np.array([25.0]), np.array([move]))
             sim.step()
             assert float(sim.read_agents(["car"]).lateral_pos[0]) - before == pytest.approx(move, abs=1e-6)
+
+
+def test_a_car_given_back_crawling_at_sumos_sideways_speed_goes_on_to_its_lane_centre_without_swinging_back():
+    """SUMO gave a keeper back at 1.2 m/s moving over at 0.9 m/s, 0.65 m right of its lane's centre,
+    where the driver's reach is 0.3 m/s: the cut from 0.9 to 0.3 carried on as -3 m/s^2 turned the
+    car the other way, to 0.8 m right of the centre, and off the road at the carriageway's edge."""
+    lateral = LaneDriving()
+    offset, speed, accel, places = np.array([-0.65]), np.array([0.9]), np.zeros(1), []
+    for _ in range(40):
+        speed, accel = lateral_profile(-offset, speed, accel, np.array([1.2]), 0.2, lateral)
+        offset = offset + speed * 0.2
+        places.append(float(offset[0]))
+    assert min(places) > -0.65 and max(places) < 0.05  # never further right than given back, no swing past
+    assert abs(places[-1]) < 0.01
+    assert np.all(np.abs(accel) <= lateral.max_lateral_accel)
 
 
 def test_the_policy_cannot_push_a_car_closer_than_the_minimum_headway():
