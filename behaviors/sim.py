@@ -394,13 +394,13 @@ class SumoSim:
             v.setParameter(vid, "laneChangeModel.lcAccelLat", f"{SUMO_LC_ACCEL_LAT:g}")
             v.setMaxSpeedLat(vid, SUMO_MAX_SPEED_LAT)
             v.setDecel(vid, PASSENGER_DECEL)  # as its vType shows followers (apparentDecel): no harder
-            v.setActionStepLength(vid, self.step_length, True)  # reacts at every step, as SUMO's cars
+        self.react_every_step(ids)
 
     def react_every_step(self, ids: Sequence[str]) -> None:
         """SUMO's driver of these agent-typed cars works its plans out at every step, as for its own
-        cars, not once a second as the agents' vType has it (`AGENT_ACTION_STEP`): SUMO's baseline
-        drives them so (`behave evaluate --baseline sumo`). SUMO keeps the change in a copy of the
-        car's vType, `TYPE@id`."""
+        cars, not once a second as the agents' vType has it (`AGENT_ACTION_STEP`): agents handed over
+        (`hand_to_sumo`) and SUMO's baseline (`behave evaluate --baseline sumo`). SUMO keeps the change
+        in a copy of the car's vType, `TYPE@id`."""
         for vid in ids:
             self._sumo.vehicle.setActionStepLength(vid, self.step_length, True)
 

@@ -18,7 +18,6 @@ from pathlib import Path
 
 import numpy as np
 
-from behaviors.drivers import make_driver
 from behaviors.env_core import (
     BACKGROUND_TYPE,
     KEEPER_TYPE,
@@ -243,7 +242,7 @@ class TrafficEnv(BehaveEnv):
     def _start_sim(self, options: SimOptions) -> SumoSim:
         """SUMO started, or restarted (libsumo keeps one simulation per process), with `options`
         and the agents' sideways speed as their driver moves them."""
-        options = replace(options, agent_max_speed_lat=make_driver(self.config.driver).max_lateral_speed)
+        options = replace(options, agent_max_speed_lat=self.fleet.driver.max_lateral_speed)
         if self.sim is None:
             self.sim = SumoSim(options)
         else:
