@@ -514,10 +514,13 @@ def not_undertaking(
     return np.where(applies, behind, np.inf).min(axis=0)
 
 
-def letting_in(traffic: LaneTraffic, lane_leads_on: np.ndarray, lateral: LaneDriving) -> np.ndarray:
+def letting_in(
+    traffic: LaneTraffic, lane_leads_on: np.ndarray, lateral: LaneDriving, asking: np.ndarray | None = None
+) -> np.ndarray:
     """[N] the acceleration that lets a car merge in front, zip fashion (+inf where there is none):
     the nearest car ahead in a neighbour lane that ends within max(`ending_lane_m`, `ending_lane_s`
-    at speed), and sooner than the own lane, is followed as a leader where it is within
+    at speed), and sooner than the own lane, or that asks to come over (`asking` [N, 2], fast side
+    and slow side; None: nobody), as a car bound for an exit does, is followed as a leader where it is within
     `look_ahead`, would fit in front of the own leader, and is not being closed on so fast that
     keeping clear of it takes more than `safe_decel`. The gap opens at the full headway (SUMO's
     drivers, who take the cars whose lane ends, move over only into a gap safe at their own 1 s),
@@ -536,9 +539,13 @@ def letting_in(traffic: LaneTraffic, lane_leads_on: np.ndarray, lateral: LaneDri
     out = np.full(len(t.speed), np.inf)
     for column, lane in ((2, 1), (4, 2)):
         gap, ahead_speed = t.gap[:, column], t.known_speed[:, column]
-        there = np.isfinite(t.other_speed[:, column]) & (gap < reach) & (gap < own_room)
+        # it fits in front of the own leader, or already reaches over the line and leads the car
+        there = (
+            np.isfinite(t.other_speed[:, column]) & (gap < reach) & ((gap < own_room) | (gap == t.gap[:, 0]))
+        )
         there &= gap > law.min_gap  # one nearer (or alongside) is passed
-        there &= (lane_leads_on[:, lane] < soon) & (lane_leads_on[:, lane] < lane_leads_on[:, 0])
+        ending = (lane_leads_on[:, lane] < soon) & (lane_leads_on[:, lane] < lane_leads_on[:, 0])
+        there &= ending if asking is None else ending | asking[:, lane - 1]
         if not there.any():
             continue
         closing = np.maximum(t.speed - ahead_speed, 0.0)
@@ -686,6 +693,7 @@ def actuate_lanes(
     far_fast_leader: tuple[np.ndarray, np.ndarray] | None = None,
     held_for: np.ndarray | None = None,
     lane_followers: tuple[np.ndarray, np.ndarray] | None = None,
+    asking: np.ndarray | None = None,
 ) -> LaneCommand:
     """One control step of the traffic driver for all agents.
 
@@ -702,8 +710,9 @@ def actuate_lanes(
     fast-side one, which is not passed on its slow side either; `held_for` [N] (None: 0) the
     seconds each car has been held up so far, which its habits' patience must reach before it
     passes (the result carries it on); `lane_followers` ([N, 2] gap, speed; None: none) the nearest
-    followers with their centres in the fast-side and slow-side lanes (`gap_acceptable`). A car that
-    wants more than the
+    followers with their centres in the fast-side and slow-side lanes (`gap_acceptable`); `asking`
+    ([N, 2] bool; None: nobody) whether the fast-side and slow-side leader wants to come over
+    (`letting_in`). A car that wants more than the
     limit (`desired_speed` above `speed_limit`) drives at what it wants, as a share of real
     drivers and of SUMO's do.
     """
@@ -761,7 +770,7 @@ def actuate_lanes(
         if lane_leads_on is not None:
             # a car on its way to another lane leaves letting in to the next one back
             bound = np.minimum(
-                bound, np.where(heading == 0, letting_in(traffic, lane_leads_on, lateral), np.inf)
+                bound, np.where(heading == 0, letting_in(traffic, lane_leads_on, lateral, asking), np.inf)
             )
         if leave is not None:
             waiting = np.where(heading == 0, leave, 0)

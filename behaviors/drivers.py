@@ -15,7 +15,15 @@ from typing import Any, ClassVar
 import numpy as np
 from gymnasium import spaces
 
-from behaviors.actuation import Actuation, CarModel, LaneDriving, LaneHabits, actuate, actuate_lanes
+from behaviors.actuation import (
+    Actuation,
+    CarModel,
+    LaneDriving,
+    LaneHabits,
+    actuate,
+    actuate_lanes,
+    look_ahead,
+)
 from behaviors.control import Fleet, Observed, Sensing, road_frame
 from behaviors.errors import BehaveError
 from behaviors.handover import (
@@ -140,6 +148,7 @@ class TrafficRows:
     one_lane_at: np.ndarray = field(default_factory=lambda: np.zeros(0))  # route's next 1-lane road
     around: Surroundings | None = None  # leaders and followers at the last sensing
     lanes: LaneAgents | None = None  # the agents in their lanes at the last sensing
+    asking: np.ndarray | None = None  # [N, 2] the fast-side, slow-side leader asks to come over (ditto)
 
 
 class TrafficDriver:
@@ -207,6 +216,7 @@ class TrafficDriver:
             one_lane_at=np.full(count, np.inf),
             around=None,
             lanes=None,
+            asking=None,
         )
 
     def observe(self, fleet: Fleet, sim: SumoSim, sensing: Sensing, with_id: bool) -> Observed:
@@ -252,7 +262,32 @@ class TrafficDriver:
         own.lanes = agents
         speeds[rows] = r.speed
         own.around = around = lane_surroundings(agents, vehicles.position, speeds, rows, g, near)
+        own.asking = self._asking_over(sim, around, r.speed, rows[~r.handed], vehicles.ids)
         return Observed(observe_lanes(agents, around), near, handover)
+
+    def _asking_over(
+        self, sim: SumoSim, around: Surroundings, speed: np.ndarray, driving: np.ndarray, ids: tuple[str, ...]
+    ) -> np.ndarray:
+        """[N, 2] bool: whether the fast-side and the slow-side leader within `look_ahead` wants to come
+        over into the agent's lane for its route (an exit, a lane that ends for it), as SUMO's own
+        lane-change model says of the cars it drives: what a driver reads from a car ahead in the next
+        lane that slows and signals. Asked of those few cars only; `driving` are the rows of the
+        agents that drive themselves, whose own wish to leave a lane the lane ends tell."""
+        rows, gaps = around.side_leader_row, around.gap[:, [2, 4]]
+        candidate = (rows >= 0) & (gaps > 0) & (gaps < look_ahead(speed, self.lateral)[:, None])
+        agent = np.zeros(len(ids), bool)
+        agent[driving] = True
+        candidate &= ~agent[np.maximum(rows, 0)]
+        out = np.zeros(rows.shape, bool)
+        if candidate.any():
+            k, side = np.nonzero(candidate)
+            # the fast-side leader comes over towards the slow side, the slow-side one towards the fast
+            asked, which = np.unique(rows[k, side] * 2 + side, return_inverse=True)
+            wishes = sim.wants_to_change(
+                [ids[a // 2] for a in asked.tolist()], np.where(asked % 2 == 0, -1, 1)
+            )
+            out[k, side] = wishes[which]
+        return out
 
     def _refresh_lane_ends(self, fleet: Fleet, sim: SumoSim, readings: Any, entered: np.ndarray) -> None:
         """Where the own and neighbouring lanes stop leading on, asked of SUMO only for the agents
@@ -359,7 +394,7 @@ class TrafficDriver:
             fleet.dt, fleet.car, self.lateral, r.side_limit, r.speed_cap, lanes.lane_leads_on,
             self.may_begin(fleet), self.habits(lanes), (around.far_fast_gap, around.far_fast_speed),
             own.held_for,
-            (around.lane_follower_gap, around.lane_follower_speed),
+            (around.lane_follower_gap, around.lane_follower_speed), own.asking,
         )  # fmt: skip
         # a junction's internal edge holds only the lanes of some connections, not the
         # carriageway: the move stays clamped to it, but leaving it is not off the road

@@ -116,6 +116,8 @@ class Surroundings:
     lane_follower_speed: np.ndarray  # [N, 2] slow-side lane, as the slots where there is no lane (not
     # observed: a car across the line nearer behind fills the follower slot and hides it, and a lane
     # change must not)
+    side_leader_row: np.ndarray  # [N, 2] int: the fast-side and slow-side leaders' rows among all
+    # vehicles, -1 where none (not observed: the driver asks SUMO whether they want to come over)
 
     @property
     def lead_gap(self) -> np.ndarray:
@@ -251,6 +253,7 @@ def surroundings(
     # are in the fast-side and in the slow-side lane
     gap = np.full((n, SLOTS_KEPT), np.inf)
     other = np.full((n, SLOTS_KEPT), np.nan)
+    who = np.full((n, SLOTS_KEPT), -1, np.int64)
     if near is None:
         near = neighbours(agents.front, positions, SEARCH_RADIUS, exclude=agent_rows)
     q, m, dx, dy, _ = within(near, SEARCH_RADIUS)
@@ -291,6 +294,7 @@ def surroundings(
         found, nearest = nearest_per_slot(n * SLOTS_KEPT, slot, distance[pair])
         gap.ravel()[found] = distance[pair[nearest]]
         other.ravel()[found] = speeds[m[pair[nearest]]]
+        who.ravel()[found] = m[pair[nearest]]
     gap = np.maximum(gap, 0.0)
     far_gap, far_speed = gap[:, 6], other[:, 6]
     behind_gap, behind_speed = gap[:, 7:], other[:, 7:]
@@ -300,7 +304,8 @@ def surroundings(
     for missing, columns, follower in ((fast_missing, slice(2, 4), 0), (slow_missing, slice(4, 6), 1)):
         gap[missing, columns], other[missing, columns] = 0.0, np.nan
         behind_gap[missing, follower], behind_speed[missing, follower] = 0.0, np.nan
-    return Surroundings(gap, other, far_gap, far_speed, behind_gap, behind_speed)
+        who[missing, columns.start] = -1
+    return Surroundings(gap, other, far_gap, far_speed, behind_gap, behind_speed, who[:, [2, 4]])
 
 
 def observe_lanes(agents: LaneAgents, around: Surroundings) -> np.ndarray:

@@ -285,6 +285,20 @@ class SumoSim:
             ids, lateral = list(compress(ids, send_move.tolist())), lateral[send_move]
         deque(map(v.changeSublane, ids, lateral.tolist()), maxlen=0)
 
+    def wants_to_change(self, ids: Sequence[str], direction: np.ndarray) -> np.ndarray:
+        """[K] bool: whether SUMO's lane-change model of each vehicle wants to move one lane in
+        `direction` [K] (+1 towards higher lane indices) for its route (a strategic wish, as before an
+        exit or where its lane ends), by the state it saved at the last step."""
+        state = self._sumo.vehicle.getLaneChangeState
+        constants = self._sumo.constants
+        side = {1: constants.LCA_LEFT, -1: constants.LCA_RIGHT}
+        wish = [constants.LCA_STRATEGIC | side[d] for d in direction.tolist()]
+        return np.fromiter(
+            (state(v, d)[1] & w == w for v, d, w in zip(ids, direction.tolist(), wish, strict=True)),
+            bool,
+            len(ids),
+        )
+
     def collisions(self) -> set[str]:
         """Ids of every vehicle in contact this step: both parties (SUMO may swap them in side hits)."""
         hit: set[str] = set()

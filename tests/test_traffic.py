@@ -636,7 +636,17 @@ def test_a_car_ahead_in_a_lane_that_ends_is_let_in_and_one_alongside_is_passed()
     assert let_in(leaders_of(slow_lead=(4, 20.0, 0.0))) == np.inf  # standing 20 m on: no braking in time
     no_room = leaders_of(lead=(0, 33.0, 20.0), slow_lead=(4, 30.0, 20.0))  # it would not fit in front
     assert let_in(no_room) == np.inf
-    assert let_in(merging, np.array([[2000.0, 2000.0, 2000.0]])) == np.inf  # the lane leads on: nobody merges
+    leads_on = np.array([[2000.0, 2000.0, 2000.0]])
+    assert let_in(merging, leads_on) == np.inf  # the lane leads on: nobody merges
+    asks = np.array([[False, True]])  # ... unless the car there asks to come over (bound for an exit)
+    asked = letting_in(lane_traffic(speed, desired, *merging, ruled.following), leads_on, ruled, asks)[0]
+    assert asked == pytest.approx(let_in(merging))
+    # one standing at the end of its lane 5 m ahead with its body over the line, the same car in both
+    # slots: the agent creeping up stops with the courtesy's room, more than following it leaves (at
+    # the standing gap SUMO's driver found no room to finish its change, and both stood for minutes)
+    creeping, over_the_line = np.array([2.0]), leaders_of(lead=(0, 5.0, 0.0), slow_lead=(4, 5.0, 0.0))
+    traffic = lane_traffic(creeping, desired, *over_the_line, ruled.following)
+    assert letting_in(traffic, leads_on, ruled, asks)[0] < min(traffic.lead_accel[0, 0], 0.0)
     slow_to_stop = np.array([3.0])  # at walking pace in a queue, a standing car 6 m on is let in
     standing = leaders_of(slow_lead=(4, 6.0, 0.0))
     queued = letting_in(lane_traffic(slow_to_stop, desired, *standing, ruled.following), ends, ruled)
@@ -1141,6 +1151,32 @@ def test_sumo_changes_lanes_for_an_agent_whose_last_sideways_move_was_too_small_
             lanes.add(sim.read_lanes(["agent"])[0])
             sim.step()
         assert "X_0" in lanes
+
+
+def test_an_agent_lets_in_a_car_of_sumo_that_must_cross_its_lane_for_an_exit(tmp_path):
+    """SUMO's drivers make room for a car whose route needs their lane (its lane-change model asks
+    them); nobody asks an agent, so the driver reads the wish from SUMO and drops back as it does for
+    a car whose lane ends. Without it, on the dense motorway's weave, cars bound for the exit and
+    cars from the on-ramp stood at its end beside agents, and the road broke down in half the seeds."""
+    with keeper_on(exit_net(tmp_path), ["A", "B"], lane=1, pos=200.0, speed=22.0) as (sim, fleet):
+        sim.add_route("to_exit", ["A", "X"])
+        sim.add_route("through", ["A", "B"])
+        sim.add_vehicle("exiting", "to_exit", "behave_passive", lane=2, pos=212.0, speed=20.0)
+        sim.add_vehicle("going_on", "through", "behave_passive", lane=2, pos=240.0, speed=20.0)
+        sim.step()
+        asked, slowest, lanes = [], 99.0, set()
+        while "exiting" in sim.vehicle_ids() and "agent" in sim.vehicle_ids():
+            fleet.sense(sim, sim.read_vehicles(), True)
+            asked.append(fleet.rows.own.asking[0].copy())
+            fleet.act(sim, np.array([[0.0, 0.5, 0.0]], np.float32))
+            sim.step()
+            slowest = min(slowest, float(sim.read_speeds(["agent"])[0]))
+            if "exiting" in sim.vehicle_ids():
+                lanes.add(sim.read_lanes(["exiting"])[0])
+                assert not sim.wants_to_change(["going_on"], np.array([-1]))[0]  # its route goes on
+        assert np.array(asked)[:, 0].any() and not np.array(asked)[:, 1].any()  # from the fast side only
+        assert slowest < 15.0  # it dropped back from 20 m/s to open the gap
+        assert {"A_1", "A_0"} <= lanes and "agent" in sim.vehicle_ids()  # through its lane to the exit
 
 
 def test_a_repeated_sideways_move_of_0_left_out_moves_the_car_as_sending_it(tmp_path):
