@@ -310,8 +310,8 @@ def test_every_collision_and_off_track_is_explained_in_the_agents_table(tmp_path
 
 
 def test_no_agent_is_put_down_in_a_lane_that_ends_before_it_could_merge_out(tmp_path):
-    """A lane drop (4 -> 3 lanes after 800 m): no agent starts in the right lane's last
-    INSERT_LANE_RUN metres (one put at the end of a dropping lane stood there and the lane queued),
+    """A lane drop (4 -> 3 lanes after 800 m): no car, learned or SUMO's, starts in the right lane's
+    last INSERT_LANE_RUN metres (one put at the end of a dropping lane stood there and the lane queued),
     and no lane keeper in the fast-most lane (it would only move out of it). Near the road's start,
     where SUMO puts cars down, no agent changes lanes (LaneDriving.entry_clearance)."""
     chain = Chain()
@@ -320,9 +320,15 @@ def test_no_agent_is_put_down_in_a_lane_that_ends_before_it_could_merge_out(tmp_
     write_plain(tmp_path, "drop", chain.ways, [("wide", "narrow", i + 1, i) for i in range(3)])
     net = run_netconvert(tmp_path, "drop", lefthand=False)
     fcd = tmp_path / "fcd.parquet"
-    summary = populate(PopulateConfig(net=net, overtakers=30, keepers=30, duration=40.0, fcd=fcd, seed=0))
-    first = read_fcd(fcd).sort_values("time").groupby("id").first()
-    first = first[first.index.isin(pd.read_csv(agents_path(fcd))["id"])]  # withdrawn ones left no row
+    summary = populate(
+        PopulateConfig(net=net, overtakers=30, keepers=30, background=60, duration=40.0, fcd=fcd, seed=0)
+    )
+    by_car = read_fcd(fcd).sort_values("time").groupby("id")
+    everyone = by_car.first()
+    first = everyone[everyone.index.isin(pd.read_csv(agents_path(fcd))["id"])]  # withdrawn: not in the table
+    stayed = everyone[by_car.size() > 1]  # a car withdrawn leaves one row, of the step SUMO placed it
+    theirs = stayed[stayed.index.str.startswith("background_") & (stayed["lane"] == "wide_0")]
+    assert len(theirs) and (theirs["pos"] <= 800.0 - INSERT_LANE_RUN).all(), theirs[["pos", "speed"]]
     assert len(first) >= 40 and summary.insert_retries > 0
     dropping = first[first["lane"] == "wide_0"]
     trace = read_fcd(fcd).sort_values(["id", "time"])
