@@ -504,9 +504,8 @@ class Population:
         assert sim is not None
         placed = [v for v in self.pending if v in present]
         assert self.vehicles is not None
-        agent = np.array([self.pending[v] != "background" for v in placed], bool)
         keeper = np.array([self.pending[v] == "keeper" for v in placed], bool)
-        withdraw = misplaced(sim, self.vehicles, self.geometry, placed, agent, keeper).tolist()
+        withdraw = misplaced(sim, self.vehicles, self.geometry, placed, keeper).tolist()
         joined = [v for v, out in zip(placed, withdraw, strict=True) if not out]
         withdrawn = [v for v, out in zip(placed, withdraw, strict=True) if out]
         self.vehicles = self.vehicles.without(withdrawn)  # withdrawn below: nobody senses them

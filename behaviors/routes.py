@@ -133,14 +133,12 @@ def misplaced(
     vehicles: VehicleState,
     geometry: RoadGeometry,
     ids: list[str],
-    agent: np.ndarray,
     keeper: np.ndarray | None = None,
 ) -> np.ndarray:
-    """[N] bool: which of the cars SUMO just placed (`ids`; `agent` [N] marks the learned ones) are
-    withdrawn and put elsewhere: too close to another car, in a lane that runs out, or a
-    lane keeper (`keeper` [N], None: none) in the fast-most of several car lanes (lanes counted as
-    in `geometry`): a keeper keeps its lane, and traffic comes onto a road from its slow side, not
-    into the lane the law leaves for passing."""
+    """[N] bool: which of the cars SUMO just placed (`ids`) are withdrawn and put elsewhere: too
+    close to another car, in a lane that runs out, or a lane keeper (`keeper` [N], None: none) in the
+    fast-most of several car lanes (lanes counted as in `geometry`): a keeper keeps its lane, and
+    traffic comes onto a road from its slow side, not into the lane the law leaves for passing."""
     rows = np.array([vehicles.row[v] for v in ids], np.int64)
     out = too_close(vehicles, rows)
     if not ids:
@@ -155,5 +153,5 @@ def misplaced(
         lane_rows = np.array([geometry.lane_index.get(lane, -1) for lane in lanes], np.int64)
         count = np.where(lane_rows >= 0, geometry.lane_num_lanes[lane_rows], 0)
         fast_most = (count > 1) & (geometry.lane_number[lane_rows] == count - 1)
-        out |= keeper & agent & fast_most
+        out |= keeper & fast_most
     return out

@@ -368,7 +368,7 @@ class TrafficEnv(BehaveEnv):
             vehicles = sim.read_vehicles(with_distance=False)
             placed = [slot for slot in waiting if names[slot] in vehicles.row]
             ids = [names[s] for s in placed]
-            close = misplaced(sim, vehicles, self.geometry, ids, np.ones(len(ids), bool))
+            close = misplaced(sim, vehicles, self.geometry, ids)
             waiting = [s for s in waiting if names[s] not in vehicles.row]
             waiting += [s for s, near in zip(placed, close.tolist(), strict=True) if near]
             sim.remove([names[s] for s in waiting])
