@@ -526,7 +526,11 @@ def letting_in(
     drivers, who take the cars whose lane ends, move over only into a gap safe at their own 1 s),
     braking no harder than the law's comfortable deceleration unless keeping clear takes more. A car
     nearer than the standing gap, or alongside, is passed, as is one that would take harder
-    braking: the next car back lets it in, so a through lane and an ending lane take turns. Letting
+    braking: the next car back lets it in, so a through lane and an ending lane take turns. One
+    alongside that asks, its front ahead of the car's, is dropped back for unless the car is closing
+    on it: on the dense motorway's weave an agent held alongside a car bound for the exit for 8 s at
+    the same speed, and it began its two changes too late, stood at its lane's end over the line,
+    and both lanes behind it broke down (SUMO's own drivers, asked, drop back). Letting
     in only a car within a few metres came too late at speed: nobody could brake for it, the merging
     car reached the end of its lane and stood there, and the lane beside it queued behind the cars
     that stopped for it at last. `lane_leads_on` [N, 3] metres (own, fast side, slow side)."""
@@ -543,9 +547,10 @@ def letting_in(
         there = (
             np.isfinite(t.other_speed[:, column]) & (gap < reach) & ((gap < own_room) | (gap == t.gap[:, 0]))
         )
-        there &= gap > law.min_gap  # one nearer (or alongside) is passed
+        asks = np.zeros(len(gap), bool) if asking is None else asking[:, lane - 1]
+        there &= (gap > law.min_gap) | asks  # one nearer (or alongside) is passed, unless it asks
         ending = (lane_leads_on[:, lane] < soon) & (lane_leads_on[:, lane] < lane_leads_on[:, 0])
-        there &= ending if asking is None else ending | asking[:, lane - 1]
+        there &= ending | asks
         if not there.any():
             continue
         closing = np.maximum(t.speed - ahead_speed, 0.0)

@@ -274,7 +274,7 @@ class TrafficDriver:
         lane that slows and signals. Asked of those few cars only; `driving` are the rows of the
         agents that drive themselves, whose own wish to leave a lane the lane ends tell."""
         rows, gaps = around.side_leader_row, around.gap[:, [2, 4]]
-        candidate = (rows >= 0) & (gaps > 0) & (gaps < look_ahead(speed, self.lateral)[:, None])
+        candidate = (rows >= 0) & (gaps < look_ahead(speed, self.lateral)[:, None])  # gap 0: alongside
         agent = np.zeros(len(ids), bool)
         agent[driving] = True
         candidate &= ~agent[np.maximum(rows, 0)]

@@ -622,7 +622,7 @@ def test_a_standing_car_edges_sideways_into_a_gap():
     assert 0.0 < out.actuation.lateral_speed[0] <= ruled.crawl_lateral_speed
 
 
-def test_a_car_ahead_in_a_lane_that_ends_is_let_in_and_one_alongside_is_passed():
+def test_a_car_ahead_in_a_lane_that_ends_is_let_in_and_one_alongside_is_passed_unless_it_asks():
     ruled = LaneDriving()
     ends = np.array([[2000.0, 2000.0, 120.0]])  # the slow-side lane ends 120 m on, the own lane leads on
     speed, desired = np.array([20.0]), np.array([30.0])
@@ -641,6 +641,13 @@ def test_a_car_ahead_in_a_lane_that_ends_is_let_in_and_one_alongside_is_passed()
     asks = np.array([[False, True]])  # ... unless the car there asks to come over (bound for an exit)
     asked = letting_in(lane_traffic(speed, desired, *merging, ruled.following), leads_on, ruled, asks)[0]
     assert asked == pytest.approx(let_in(merging))
+    # one alongside, its front ahead, that asks: dropped back for, gently, unless the car closes on it
+    alongside = leaders_of(slow_lead=(4, 0.0, 20.0))
+    assert let_in(alongside) == np.inf  # its lane ends, but it does not ask: the next car back lets it in
+    beside = letting_in(lane_traffic(speed, desired, *alongside, ruled.following), leads_on, ruled, asks)[0]
+    assert beside == pytest.approx(-ruled.following.comfortable_decel)
+    faster = lane_traffic(np.array([23.0]), desired, *alongside, ruled.following)  # it passes, 3 m/s faster,
+    assert letting_in(faster, leads_on, ruled, asks)[0] == np.inf  # and the car behind lets it in
     # one standing at the end of its lane 5 m ahead with its body over the line, the same car in both
     # slots: the agent creeping up stops with the courtesy's room, more than following it leaves (at
     # the standing gap SUMO's driver found no room to finish its change, and both stood for minutes)
