@@ -11,10 +11,11 @@ traffic.pt: the fine-tuning that made it, from the actor and critic it started f
 (behaviors/pretrained/starts/traffic_start.pt, episode 120 of a from-scratch run under earlier
 rules of the road, which the model card names), seed 5, to episode 210, whose actor ships. Training
 is deterministic for a seed on one core, so on the code the shipped file was trained on the recipe
-gives it weight for weight (MODEL_CARD.md says how to run it there); on today's code the rules of
-the road changed since then change what the agents meet, and it gives a sibling policy. The stage
-keeps the shipped file and its model card section if the result is the same, and otherwise ships
-the result with a generated section: screen it in dense traffic (benchmarks/flow.py) first.
+gives it weight for weight (MODEL_CARD.md names that code); after a change to the rules of the
+road, which changes what the agents meet, it gives a sibling policy. The stage keeps the shipped
+file and its model card section if the result is the same, and otherwise ships the result with a
+generated section: put it through `make dense`, `make flow`, `make realism` and `make own-nets`
+(each takes `--policy`) before it stays.
 """
 
 from __future__ import annotations
