@@ -18,6 +18,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from behaviors.actuation import Actuation, CarModel
+from behaviors.bodies import Bodies
 from behaviors.geometry import RoadGeometry
 from behaviors.handover import Handover
 from behaviors.lanes import lane_coordinates
@@ -292,7 +293,7 @@ class Fleet:
                 raise RuntimeError("Fleet.sense with agents SUMO no longer has: keep() them out first")
             self.rows.vehicle_rows = rows
             readings, lane_rows, entered = self._read_lanes(sim, vehicles, rows)
-        reach = search_reach(float(self.rows.speed.max(initial=0.0)), self.dt, self.car)
+        reach = search_reach(float(self.rows.speed.max(initial=0.0)), self.dt, self.car, vehicles.longest)
         with self.timer.phase("sensors"):
             sensing = Sensing(vehicles, rows, readings, lane_rows, entered, reach)
             observed = self.driver.observe(self, sim, sensing, with_id)
@@ -381,7 +382,8 @@ class Fleet:
         assert f is not None
         road_axis = f.heading - r.angle  # lanes run along the road, not along a swerving car
         fronts = vehicles.position
-        around = surroundings(fronts[rows], road_axis, fronts, rows, self.car, reach, near)
+        bodies = Bodies(vehicles.length, vehicles.width, self.car.length, self.car.width)
+        around = surroundings(fronts[rows], road_axis, fronts, rows, self.car, reach, near, bodies)
         agent_of = np.full(len(vehicles.ids), -1, np.int64)
         agent_of[rows] = np.arange(len(rows))
         leader_speed = np.zeros(len(rows))

@@ -24,6 +24,7 @@ from behaviors.actuation import (
     actuate_lanes,
     look_ahead,
 )
+from behaviors.bodies import Bodies
 from behaviors.control import Fleet, Observed, Sensing, road_frame
 from behaviors.errors import BehaveError
 from behaviors.handover import (
@@ -34,12 +35,12 @@ from behaviors.handover import (
     lane_leads_on,
 )
 from behaviors.lanes import (
-    SEARCH_RADIUS,
     TRAFFIC_LAYOUT,
     TRAFFIC_OBS_SIZE,
     LaneAgents,
     Surroundings,
     observe_lanes,
+    search_radius,
 )
 from behaviors.lanes import surroundings as lane_surroundings
 from behaviors.rewards import TERM_NAMES, TRAFFIC_TERM_NAMES
@@ -224,7 +225,9 @@ class TrafficDriver:
         need, and decides the hand-overs (sent to SUMO by the fleet after sensing)."""
         r, g, own = fleet.rows, fleet.geometry, fleet.rows.own
         vehicles, rows, readings = sensing.vehicles, sensing.rows, sensing.readings
-        radius = max(SEARCH_RADIUS, sensing.reach) if fleet.shield else SEARCH_RADIUS
+        bodies = Bodies(vehicles.length, vehicles.width, fleet.car.length, fleet.car.width)
+        radius = search_radius(bodies.longest)
+        radius = max(radius, sensing.reach) if fleet.shield else radius
         front = vehicles.position[rows]  # read only below: one gather serves the search, frame and lanes
         near = neighbours(front, vehicles.position, radius, exclude=rows)
         r.frame = frame = road_frame(g, readings, sensing.lane_rows, front, r.angle, fleet.car)
@@ -261,7 +264,7 @@ class TrafficDriver:
         )
         own.lanes = agents
         speeds[rows] = r.speed
-        own.around = around = lane_surroundings(agents, vehicles.position, speeds, rows, g, near)
+        own.around = around = lane_surroundings(agents, vehicles.position, speeds, rows, g, near, bodies)
         own.asking = self._asking_over(sim, around, r.speed, rows[~r.handed], vehicles.ids)
         return Observed(observe_lanes(agents, around), near, handover)
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from behaviors.actuation import nan_as
 from behaviors.agents_table import STANDSTILL_SPEED
+from behaviors.bodies import Bodies
 from behaviors.geometry import NEXT_LANES_SEEN, RoadGeometry, road_coordinates
 from behaviors.sensors import Neighbours, nearest_per_slot, neighbours, within
 from behaviors.shield import PASSING_ROOM
@@ -33,11 +34,13 @@ RELATIVE_SPEED_SCALE = 15.0
 LANE_END_RANGE = 500.0
 """m: how far a lane leads on is seen up to this distance (1 = at least that far)."""
 MAX_LANES_SEEN = 3
-OTHER_LENGTH = 5.0
-"""m: length assumed for other vehicles (gap = distance between front bumpers - length)."""
-OTHER_WIDTH = 1.8
-SEARCH_RADIUS = GAP_RANGE + OTHER_LENGTH
-"""m between front bumpers: the farthest a neighbour within GAP_RANGE can be."""
+
+
+def search_radius(longest: float) -> float:
+    """m between front bumpers: the farthest a neighbour within GAP_RANGE can be when the longest
+    vehicle (agents included) is `longest` metres long."""
+    return GAP_RANGE + longest
+
 
 NEIGHBOUR_SLOTS = ("leader", "follower", "fast_leader", "fast_follower", "slow_leader", "slow_follower")
 """Order of the six neighbours: own lane, the fast-side lane, the slow-side lane."""
@@ -240,34 +243,46 @@ def surroundings(
     agent_rows: np.ndarray,
     geometry: RoadGeometry,
     near: Neighbours | None = None,
+    bodies: Bodies | None = None,
 ) -> Surroundings:
     """Nearest leader and follower in the own, fast-side and slow-side lane of every agent.
 
     A vehicle counts in every lane its body overlaps (a car mid-change blocks both lanes);
     one alongside counts as a leader or follower with gap 0. `positions`/`speeds` cover all
-    vehicles (SUMO's too); `agent_rows[i]` is agent i's own row there. `near`: the pairs of a
-    neighbour search already made with at least SEARCH_RADIUS (one search serves the shield too).
+    vehicles (SUMO's too); `agent_rows[i]` is agent i's own row there. `bodies`: every vehicle's
+    size (None: all of the agents' size). Gaps are bumper to bumper: to a leader's rear, from a
+    follower's front to the agent's rear. `near`: the pairs of a neighbour search already made with
+    at least `search_radius(bodies.longest)` (one search serves the shield too).
     """
     n = len(agents.speed)
+    bodies = Bodies.cars(len(positions)) if bodies is None else bodies
+    radius = search_radius(bodies.longest)
     # NEIGHBOUR_SLOTS, the nearest leader beyond the fast-side lane, the nearest followers whose centres
     # are in the fast-side and in the slow-side lane
     gap = np.full((n, SLOTS_KEPT), np.inf)
     other = np.full((n, SLOTS_KEPT), np.nan)
     who = np.full((n, SLOTS_KEPT), -1, np.int64)
     if near is None:
-        near = neighbours(agents.front, positions, SEARCH_RADIUS, exclude=agent_rows)
-    q, m, dx, dy, _ = within(near, SEARCH_RADIUS)
+        near = neighbours(agents.front, positions, radius, exclude=agent_rows)
+    q, m, dx, dy, square = within(near, radius)
     if len(q):
         along, across = lane_coordinates(
             geometry, agents.lane_row, agents.shape_pos, agents.front, q, np.stack([dx, dy], axis=1)
         )
+        behind = along < 0
+        # the body between the two front bumpers: the leader's, or the agent's own for a follower
+        body = np.where(behind, bodies.own_length, bodies.length[m])
+        seen = square < (GAP_RANGE + body) ** 2
+        if not seen.all():  # only where some vehicle is longer than another
+            k = np.flatnonzero(seen)
+            q, m, along, across, behind, body = q[k], m[k], along[k], across[k], behind[k], body[k]
         # the other car's lateral place in own-lane widths, 0 = own lane centre
         width = agents.lane_width[q]
         lane_units = across * agents.fast_side_sign / width
-        half = OTHER_WIDTH / 2 / width
+        other_width = bodies.width[m]
+        half = other_width / 2 / width
         slow_edge, fast_edge = lane_units - half, lane_units + half  # worked out once for all lanes
-        behind = along < 0
-        distance = np.abs(along) - OTHER_LENGTH
+        distance = np.abs(along) - body
         row_slot = q * SLOTS_KEPT + behind  # + a lane's leader column: its leader, or the follower beside it
         slots, pairs = [], []
         for side, column in ((0, 0), (1, 2), (-1, 4)):
@@ -279,7 +294,8 @@ def surroundings(
                 standing = (distance[k] <= 0) & (speeds[m[k]] < STANDSTILL_SPEED)
                 if standing.any():
                     s = k[standing]
-                    room = np.abs(lane_units[s] * width[s] - agents.lane_offset[q[s]]) - OTHER_WIDTH
+                    centres = np.abs(lane_units[s] * width[s] - agents.lane_offset[q[s]])
+                    room = centres - (bodies.own_width + other_width[s]) / 2
                     standing[standing] = room >= PASSING_ROOM
                     k = k[~standing]
             slots.append(row_slot[k] + column)

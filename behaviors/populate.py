@@ -298,15 +298,20 @@ def collision_incident(
     other_front: np.ndarray,
     other_speed: float,
     car: CarModel,
+    other_size: tuple[float, float] | None = None,
 ) -> tuple[str, float, float]:
-    """(side, headway, lateral gap) of two cars from their front bumpers and speeds: side by side
-    where they overlap lengthwise (left or right), else one follows the other (front or rear)."""
+    """(side, headway, lateral gap) of two vehicles from their front bumpers and speeds: side by side
+    where they overlap lengthwise (left or right), else one follows the other (front or rear). The
+    agent is `car`-sized, the other `other_size` (length, width; None: `car`-sized), so the gap to a
+    lorry ahead runs to its rear, 16 m behind its front."""
+    other_length, other_width = (car.length, car.width) if other_size is None else other_size
     dx, dy = other_front - front
     along = dx * np.cos(heading) + dy * np.sin(heading)
     across = -dx * np.sin(heading) + dy * np.cos(heading)
-    gap = abs(along) - car.length
+    gap = along - other_length if along > 0 else -along - car.length
     if gap <= 0:
-        return ("left" if across > 0 else "right"), np.nan, float(abs(across) - car.width)
+        side_gap = abs(across) - (car.width + other_width) / 2
+        return ("left" if across > 0 else "right"), np.nan, float(side_gap)
     follower_speed = speed if along > 0 else other_speed
     headway = gap / follower_speed if follower_speed > 0 else np.inf
     return ("front" if along > 0 else "rear"), float(headway), np.nan
@@ -649,8 +654,9 @@ class Population:
             other_speed = float(before.speed[o])
             heading = float(frame.heading[k])
             side, headway, lateral = collision_incident(
-                before.position[row], heading, speed, before.position[o], other_speed, fleet.car
-            )
+                before.position[row], heading, speed, before.position[o], other_speed, fleet.car,
+                (float(before.length[o]), float(before.width[o])),
+            )  # fmt: skip
             out[k] = Incident(side, lane, offset, partner, speed, other_speed, headway, lateral)
         return out
 

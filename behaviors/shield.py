@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from behaviors.actuation import CarModel
+from behaviors.bodies import Bodies
 from behaviors.sensors import Neighbours, nearest_per_slot, neighbours
 
 SIDE_MARGIN = 0.3
@@ -67,6 +68,7 @@ def surroundings(
     car: CarModel,
     reach: float,
     near: Neighbours | None = None,
+    bodies: Bodies | None = None,
 ) -> Surroundings:
     """Side room and leader of every agent, from front bumpers (SUMO's vehicle positions).
 
@@ -74,9 +76,10 @@ def surroundings(
     bumper one length back, and its width around its lateral position (which is its front's).
     So everything here is measured between front bumpers, along and across `axis`, the direction
     of the road at each agent (not its heading: a swerving car's frame would tilt the gaps to the
-    cars beside it). `points` holds every vehicle's front, row `self_rows[i]` being agent i;
-    all cars are taken to be `car`-sized. `reach` bounds the search, in metres; `near`, if given,
-    holds the pairs of a search already made with at least that radius.
+    cars beside it). `points` holds every vehicle's front, row `self_rows[i]` being agent i; the
+    agents are `car`-sized and the others as `bodies` says (None: `car`-sized too). `reach` bounds
+    the search, in metres; `near`, if given, holds the pairs of a search already made with at least
+    that radius.
     """
     n = len(front)
     room = np.full((n, 2), np.inf)
@@ -89,8 +92,13 @@ def surroundings(
     cos, sin = np.cos(axis)[q], np.sin(axis)[q]
     ahead = dx * cos + dy * sin  # the other's front, along the road and across it (positive = left)
     left = dy * cos - dx * sin
-    alongside = close & (np.abs(ahead) < car.length + LENGTHWISE_SLACK)
-    side_gap = np.abs(left) - car.width
+    if bodies is None:
+        other_length, other_width = np.full(len(m), car.length), np.full(len(m), car.width)
+    else:
+        other_length, other_width = bodies.length[m], bodies.width[m]
+    # overlapping lengthwise: the other's front ahead of the agent's rear, its rear behind the front
+    alongside = close & (ahead < other_length + LENGTHWISE_SLACK) & (ahead > -(car.length + LENGTHWISE_SLACK))
+    side_gap = np.abs(left) - (car.width + other_width) / 2
     beside = alongside & (side_gap > 0)  # overlapping sideways already: ahead or behind, not beside
     for side, mask in ((0, beside & (left > 0)), (1, beside & (left < 0))):
         np.minimum.at(room[:, side], q[mask], side_gap[mask])
@@ -98,18 +106,20 @@ def surroundings(
     # clear (capped to the speed of a car that stood beside it, an agent stood for good)
     passable = beside & (side_gap >= PASSING_ROOM)
     path = np.flatnonzero(close & (side_gap < PATH_MARGIN) & (ahead > 0) & ~passable)
-    q, m, gap = q[path], m[path], ahead[path] - car.length
+    q, m, gap = q[path], m[path], ahead[path] - other_length[path]
     agent, first = nearest_per_slot(n, q, gap)
     leader[agent] = m[first]
     gap_ahead[agent] = gap[first]
     return Surroundings(room, leader, gap_ahead)
 
 
-def search_reach(top_speed: float, dt: float, car: CarModel) -> float:
-    """Metres within which a car ahead can limit an agent at `top_speed` (a stopped one at that)."""
+def search_reach(top_speed: float, dt: float, car: CarModel, longest: float | None = None) -> float:
+    """Metres within which a car ahead can limit an agent at `top_speed` (a stopped one at that):
+    its front is up to the `longest` vehicle's length (None: `car`'s) beyond its rear."""
     brake = car.max_brake
     stopping = ((top_speed + brake * dt) ** 2) / (2 * brake)
-    return stopping + STANDSTILL_GAP + 2 * car.length + 2 * car.width
+    other = car.length if longest is None else max(longest, car.length)
+    return stopping + STANDSTILL_GAP + (car.length + other) + 2 * car.width
 
 
 def side_limits(room: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ import weakref
 import xml.etree.ElementTree as ET
 from collections import deque
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import chain, compress
 from pathlib import Path
 from types import ModuleType, SimpleNamespace
@@ -134,6 +134,14 @@ class VehicleState:
     speed: np.ndarray  # [M] m/s
     distance: np.ndarray  # [M] odometer since insertion, metres (empty if not read)
     row: dict[str, int]  # id -> row; shared by consecutive states with the same ids: never mutate
+    length: np.ndarray  # [M] metres, front bumper to rear bumper (the vehicle's vType)
+    width: np.ndarray  # [M] metres
+
+    @property
+    def longest(self) -> float:
+        """Metres: the longest vehicle's length (0 with none), which bounds how far back a car
+        reaching into a neighbour's lane can start."""
+        return float(self.length.max(initial=0.0))
 
     def without(self, removed: list[str]) -> VehicleState:
         """The same state minus vehicles removed since it was read (so nobody senses a removed car)."""
@@ -145,7 +153,9 @@ class VehicleState:
         ids = tuple(v for v, k in zip(self.ids, keep.tolist(), strict=True) if k)
         distance = self.distance[keep] if len(self.distance) else self.distance
         row = {v: k for k, v in enumerate(ids)}
-        return VehicleState(ids, self.position[keep], self.speed[keep], distance, row)
+        return VehicleState(
+            ids, self.position[keep], self.speed[keep], distance, row, self.length[keep], self.width[keep]
+        )
 
 
 @dataclass(frozen=True)
@@ -203,7 +213,10 @@ class SumoSim:
         self._closer = weakref.finalize(self, _stop, libsumo)
         self.step_length = options.step_length
         self._set_agent_vtypes(options)
-        self._last = VehicleState((), np.zeros((0, 2)), np.zeros(0), np.zeros(0), {})
+        self._sizes: dict[str, tuple[float, float]] = {}  # id -> (length, width), read once per vehicle
+        self._last = VehicleState(
+            (), np.zeros((0, 2)), np.zeros(0), np.zeros(0), {}, np.zeros(0), np.zeros(0)
+        )
 
     def __enter__(self) -> SumoSim:
         return self
@@ -245,16 +258,32 @@ class SumoSim:
         ids = self._sumo.vehicle.getIDList()
         if ids == self._last.ids:  # nobody came or left: the same row numbers (and dict) hold
             ids, row = self._last.ids, self._last.row
+            length, width = self._last.length, self._last.width
         else:
             row = {vid: k for k, vid in enumerate(ids)}
+            length, width = self._read_sizes(ids)
         # one flat pass over SUMO's (x, y) tuples: twice as fast as np.array on the list of them
         position = np.fromiter(chain.from_iterable(map(v.getPosition, ids)), float, 2 * len(ids)).reshape(
             -1, 2
         )
         speed = np.fromiter(map(v.getSpeed, ids), float, len(ids))
         distance = np.fromiter(map(v.getDistance, ids), float, len(ids)) if with_distance else np.zeros(0)
-        self._last = VehicleState(ids, position, speed, distance, row)
+        self._last = VehicleState(ids, position, speed, distance, row, length, width)
         return self._last
+
+    def _read_sizes(self, ids: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """Length and width of each vehicle in `ids`: asked of SUMO once per vehicle (a vehicle keeps
+        its vType's size; `set_agent_type` forgets the old one), kept for the vehicles still there."""
+        sizes, v = self._sizes, self._sumo.vehicle
+        for vid in ids:
+            if vid not in sizes:
+                sizes[vid] = (v.getLength(vid), v.getWidth(vid))
+        if len(sizes) > 2 * len(ids) + 64:  # forget those that left, now and then
+            self._sizes = sizes = {vid: sizes[vid] for vid in ids}
+        flat = np.fromiter(chain.from_iterable(map(sizes.__getitem__, ids)), float, 2 * len(ids)).reshape(
+            -1, 2
+        )
+        return flat[:, 0].copy(), flat[:, 1].copy()
 
     def read_agents(self, ids: Sequence[str]) -> AgentReadings:
         """Lane, lane position and lateral offset of the controlled vehicles."""
@@ -464,6 +493,8 @@ class SumoSim:
         v.setActionStepLength(vid, AGENT_ACTION_STEP, True)
         v.setType(vid, vtype)
         v.setParameter(vid, "laneChangeModel.lcAccelLat", f"{AGENT_LC_ACCEL_LAT:g}")
+        self._sizes.pop(vid, None)  # another vType, maybe another size
+        self._last = replace(self._last, ids=())  # the next read builds its sizes anew
 
     @functools.cached_property
     def has_signals(self) -> bool:

@@ -301,15 +301,19 @@ def test_start_speed_is_drawn_per_episode_or_fixed():
 def test_vehicle_state_without_removed_cars_drops_exactly_their_rows():
     position = np.arange(10.0).reshape(5, 2)
     ids = ("a", "b", "c", "d", "e")
+    length = np.array([5.0, 16.5, 5.0, 9.0, 4.5])
     state = VehicleState(
-        ids, position, np.arange(5.0) + 20.0, np.arange(5.0), {v: k for k, v in enumerate(ids)}
-    )
+        ids, position, np.arange(5.0) + 20.0, np.arange(5.0), {v: k for k, v in enumerate(ids)},
+        length, np.full(5, 1.8),
+    )  # fmt: skip
     assert state.without(["zz"]) is state  # removing nobody (or an unknown id) copies nothing
     left = state.without(["b", "e", "zz"])
     assert left.ids == ("a", "c", "d") and left.row == {"a": 0, "c": 1, "d": 2}
     np.testing.assert_array_equal(left.position, position[[0, 2, 3]])
     np.testing.assert_array_equal(left.distance, [0.0, 2.0, 3.0])
     np.testing.assert_array_equal(left.speed, [20.0, 22.0, 23.0])
+    np.testing.assert_array_equal(left.length, [5.0, 5.0, 9.0])
+    assert state.longest == 16.5 and left.longest == 9.0
 
 
 def test_the_lane_term_measures_the_offset_from_the_lane_centre_sumo_reports():
