@@ -10,7 +10,7 @@ PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 WORKERS ?= 1
 
-.PHONY: setup run test typecheck lint bench bench-scale soak learn-check pretrained traffic-policy paper realism own-nets dense flow clean
+.PHONY: setup run test typecheck lint bench bench-scale soak learn-check pretrained traffic-policy paper realism own-nets dense flow ablation clean
 
 setup: $(DEV_STAMP)
 
@@ -80,6 +80,11 @@ dense: $(STAMP)
 
 flow: $(STAMP)
 	$(BIN)/python benchmarks/flow.py --seed $(SEED) --jobs 2
+
+# who drives (issue 43): the shipped policy against its own median action held constant and against
+# --driver rules, light and dense highway, seeds 0-2 (about 20 min of one core); writes docs/ablation.md
+ablation: $(STAMP)
+	$(BIN)/python benchmarks/ablation.py --seeds 0,1,2 --duration 1800
 
 paper: $(STAMP)
 	$(BIN)/python benchmarks/paper.py --seed $(SEED)

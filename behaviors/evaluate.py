@@ -30,7 +30,7 @@ from behaviors.errors import BehaveError
 from behaviors.export import fcd_options, read_fcd
 from behaviors.files import atomic_write_bytes, atomic_write_text, ensure_writable_dir, temp_dir
 from behaviors.metrics import agent_runs, mean_rows, passed_fraction, summary
-from behaviors.policy import Act, Policy, load_policy
+from behaviors.policy import RULES, Act, Policy, load_policy, rules_policy
 from behaviors.realism import (
     SKIP_S,
     NothingToMeasure,
@@ -128,7 +128,8 @@ def plan_evaluation(
 ) -> EvaluationPlan:
     """Check every option against the policies before anything runs; BehaveError names the problem.
 
-    `checkpoints`: anything policy.load_policy takes (files, run directories, bundled names); their
+    `checkpoints`: anything policy.load_policy takes (files, run directories, bundled names), or "rules"
+    (policy.rules_policy: the traffic driver's rules with no network, as a baseline); their
     driver model sets the environment, and their behaviour the settings unless `behaviour` is given.
     `scenario`: None = where the driver trains (the paper's ring, the traffic driver's roads).
     `opponents`: slower passive cars ahead (see EnvConfig); `shield`: drive through populate's
@@ -140,7 +141,7 @@ def plan_evaluation(
         raise BehaveError(f"unknown baseline '{baseline}' (the only one is '{BASELINE}')")
     if episodes < 1:
         raise BehaveError(f"episodes must be positive, got {episodes}")
-    policies = [load_policy(path) for path in checkpoints]
+    policies = [rules_policy() if str(path) == RULES else load_policy(path) for path in checkpoints]
     driver = common_driver(policies)
     behaviour = behaviour or (policies[0].behaviour if policies else "lanekeeping")
     if behaviour not in BEHAVIOURS:

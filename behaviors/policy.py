@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -152,3 +152,46 @@ def slot_act(actors: list[Actor]) -> Act:
         return out
 
     return act
+
+
+RULES = "rules"
+"""`--driver rules`: the traffic driver's law and lane-change motives with no network (`rules_policy`)."""
+RULES_ACTION = (1.0, 0.5, 0.0)
+"""(steer, accel, brake) that leaves every choice of the traffic driver to its hand-written rules
+(actuation.actuate_lanes with the driver's `habits`), i.e. the network's "no wish of its own":
+
+* accel 0.5, brake 0: the adjustment `2 accel_span (accel - 0.5) - max_brake brake` is 0, so the
+  car-following law (the improved IDM) alone sets the acceleration, bounded by the rules (no
+  tailgating, not undertaking, letting in, falling in).
+* steer +1, not 0: the slow side is the rules' alone (steer is clipped to >= 0; keeping right and
+  leaving an ending lane are rules), and a wish for the fast side counts only where the behaviour's
+  motive holds (a leader slower than the car wants by its pass margin, for its patience: `held_up`).
+  Overtakers get steer 1 there whatever the action says. Steer +1 lets keepers pass where their
+  habits say so too (a leader 8 m/s slower for 10 s); steer 0 would forbid every such pass, a
+  choice of the action's, not the rules'. Anywhere no motive holds, +1 is no wish at all.
+"""
+
+
+def constant_act(action: tuple[float, float, float] | np.ndarray) -> Act:
+    """A "policy" with the actors' call signature that returns `action` [3] for every observation:
+    the rules driver (RULES_ACTION), or a policy's actions held at a fixed vector (the ablation)."""
+    row = np.asarray(action, np.float32).reshape(1, 3)
+
+    def act(obs: np.ndarray, slots: np.ndarray | None = None) -> np.ndarray:
+        return np.repeat(row, len(obs), axis=0)
+
+    return act
+
+
+def rules_policy() -> Policy:
+    """The traffic driver's rules with no network (RULES_ACTION through one batched call a step, as a
+    loaded actor is called): a baseline that needs no checkpoint, for keepers and overtakers alike."""
+    size = make_driver("traffic").obs_size(True)
+    return Policy(RULES, Path(RULES), "traffic", "multi", size, constant_act(RULES_ACTION), True)
+
+
+def held_constant(policy: Policy, action: tuple[float, float, float] | np.ndarray) -> Policy:
+    """`policy` with its actions replaced by the fixed `action` [3] (steer, accel, brake), its driver
+    model and everything around it untouched: what the network adds over its own typical action."""
+    text = ",".join(f"{float(v):.3g}" for v in np.asarray(action, float).ravel())
+    return replace(policy, label=f"{policy.label}@{text}", act=constant_act(action))

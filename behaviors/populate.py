@@ -53,14 +53,14 @@ from behaviors.agents_table import (
     columns,
 )
 from behaviors.control import Fleet, RoadFrame
-from behaviors.drivers import make_driver
+from behaviors.drivers import DRIVERS, make_driver
 from behaviors.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.errors import BehaveError
 from behaviors.export import FCD_SUFFIXES, fcd_options, require_projection, seal_fcd
 from behaviors.files import atomic_path, check_output_path, temp_path
 from behaviors.geometry import CAR_CLASS, RoadGeometry, load_geometry
 from behaviors.interrupt import sigint_between_steps
-from behaviors.policy import PRETRAINED, Policy, load_policy
+from behaviors.policy import PRETRAINED, RULES, Policy, load_policy, rules_policy
 from behaviors.routes import RoutePool, misplaced, route_graph
 from behaviors.scenario_config import ScenarioConfig, read_sumocfg, run_as_sumocfg, share_draw
 from behaviors.sim import SimOptions, SumoSim, VehicleState, check_display
@@ -94,6 +94,7 @@ class PopulateConfig:
     share: float = 0.0  # of the scenario's passenger cars, the fraction that become agents
     overtaker_fraction: float = 0.5  # of those agents, the fraction that are overtakers
     gui: bool = False  # run in sumo-gui (needs a display)
+    driver: str | None = None  # None: the policy's own; "rules": the traffic driver's rules, no policy
 
     @property
     def share_kinds(self) -> tuple[bool, bool]:
@@ -121,6 +122,8 @@ class PopulateConfig:
                 raise BehaveError(f"{name.replace('_', ' ')} must be in [0, 1], got {getattr(self, name)}")
         if self.share > 0 and self.sumocfg is None:
             raise BehaveError("--share converts a scenario's own cars: it needs --sumocfg")
+        if self.driver is not None and self.driver not in (*DRIVERS, RULES):
+            raise BehaveError(f"unknown driver '{self.driver}' (choose from {', '.join((*DRIVERS, RULES))})")
         if self.gui:
             check_display()
 
@@ -130,6 +133,8 @@ def config_from(sumocfg: Path | None, **given: Any) -> PopulateConfig:
     length and its duration (end - begin) hold where not given, and behave adds no cars of its own
     unless asked (--keepers, --overtakers, --background)."""
     values = {name: value for name, value in given.items() if value is not None}
+    if values.get("driver") == RULES and "policy" in values:
+        raise BehaveError("--driver rules drives with no network: drop --policy")
     if sumocfg is not None:
         if "net" in values:
             raise BehaveError(
@@ -438,10 +443,15 @@ def write_agents_csv(path: Path, ended: EndedAgents, driving: list[AgentRow]) ->
 class Population:
     """The running SUMO simulation with its learned agents."""
 
-    def __init__(self, config: PopulateConfig, on_status: Callable[[str], None] | None = None) -> None:
+    def __init__(
+        self,
+        config: PopulateConfig,
+        on_status: Callable[[str], None] | None = None,
+        policy: Policy | None = None,
+    ) -> None:
         self.config = config
         self.scenario: ScenarioConfig | None = read_sumocfg(config.sumocfg) if config.sumocfg else None
-        self.policy = populate_policy(config)  # a wrong policy is found before set-up
+        self.policy = populate_policy(config, policy)  # a wrong policy is found before set-up
         self.geometry = load_geometry(config.net, cache=True, on_status=on_status)
         self.graph = route_graph(self.geometry)
         self.lane_ids = list(self.geometry.lane_index)  # by lane row: names the lane of an incident
@@ -726,11 +736,22 @@ POLICY_THREADS = 1
 (benchmarks/bench_policy_threads.py, docs/benchmarks.md)."""
 
 
-def populate_policy(config: PopulateConfig) -> Policy:
-    """The configured policy (policy.load_policy, in config.precision), checked against the agents
-    it must drive before anything is set up."""
-    half = None if config.precision == "float32" else functools.partial(use_bfloat16, config.precision)
-    policy = load_policy(config.policy, half=half)
+def populate_policy(config: PopulateConfig, given: Policy | None = None) -> Policy:
+    """The configured policy (policy.load_policy, in config.precision; with `driver` "rules" the
+    rules' constant action, policy.rules_policy), or the policy `given` already loaded, checked
+    against the agents it must drive before anything is set up."""
+    if given is not None:
+        policy = given
+    elif config.driver == RULES:
+        policy = rules_policy()
+    else:
+        half = None if config.precision == "float32" else functools.partial(use_bfloat16, config.precision)
+        policy = load_policy(config.policy, half=half)
+    if config.driver not in (None, RULES, policy.driver):
+        raise BehaveError(
+            f"{policy.path} drives the {policy.driver} driver, not the {config.driver} one "
+            f"(drop --driver, or give a {config.driver}-driver policy)"
+        )
     check_fits(config, policy)
     return policy
 
@@ -775,6 +796,7 @@ def finish_fcd(
         f"<!-- behave populate: net={config.net.name} overtakers={config.overtakers} "
         f"keepers={config.keepers} background={config.background} duration={config.duration} "
         f"step-length={config.step_length} seed={config.seed}{' geo=true' if config.geo else ''}"
+        f"{f' driver={config.driver}' if config.driver else ''}"
         f"{f' sumocfg={config.sumocfg.name} share={config.share}' if config.sumocfg else ''}{cut} -->\n"
     )
     seal_fcd(partial, final, header=header, geo=config.geo, last_time=last_time, step=config.step_length)
@@ -784,16 +806,18 @@ def populate(
     config: PopulateConfig,
     on_step: Callable[[float], None] | None = None,
     on_status: Callable[[str], None] | None = None,
+    policy: Policy | None = None,
 ) -> PopulateSummary:
     """Run the whole simulation; the FCD file and the per-agent table beside it appear only if the
-    run completed."""
+    run completed. `policy`: one already loaded drives instead of config.policy (the Python API's
+    way to hold a policy's actions constant, policy.held_constant, or to record them)."""
     config.validate()
     check_output_path(config.fcd)
     check_output_path(agents_path(config.fcd))
     if config.geo:
         require_projection(config.net, "--geo writes lon/lat: the net needs a geo projection")
     torch.set_num_threads(POLICY_THREADS)
-    population = Population(config, on_status)
+    population = Population(config, on_status, policy)
     partial = partial_path(config.fcd)
     start = time.perf_counter()
     try:

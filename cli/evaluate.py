@@ -19,7 +19,8 @@ def evaluate_command(
     checkpoints: Annotated[
         list[Path] | None,
         typer.Argument(
-            help="policies to compare: .pt files, training run directories or bundled names (traffic, ...)"
+            help="policies to compare: .pt files, training run directories or bundled names (traffic, ...); "
+            "'rules': the traffic driver's rules with no network (behave populate --driver rules)"
         ),
     ] = None,
     agents: Annotated[str, typer.Option(help="agent counts to test, e.g. 3,5,7,10")] = "3,5,7,10,12,15,20",

@@ -72,12 +72,19 @@ def populate_command(
         ),
     ] = None,
     policy: Annotated[
-        Path,
+        Path | None,
         typer.Option(
             help="a bundled policy's name (traffic, lanekeeping, overtaking, multi), a .pt checkpoint or a "
             "training run's directory [default: traffic]"
         ),
-    ] = DEFAULT_POLICY,
+    ] = None,
+    driver: Annotated[
+        str | None,
+        typer.Option(
+            help="'rules': the traffic driver's car-following law and lane-change rules with no network "
+            "(a baseline; no --policy); paper or traffic: must be the policy's [default: the policy's]"
+        ),
+    ] = None,
     background: Annotated[
         int | None,
         typer.Option(
@@ -149,7 +156,7 @@ def populate_command(
         sumocfg, net=net, overtakers=overtakers, keepers=keepers, policy=policy, background=background,
         routes=routes, duration=duration, step_length=step_length, seed=seed, fcd=fcd, geo=geo,
         keep_count=keep_count, shield=shield, precision=precision, share=share,
-        overtaker_fraction=overtaker_fraction, gui=gui,
+        overtaker_fraction=overtaker_fraction, gui=gui, driver=driver,
     )  # fmt: skip
     if plot is not None:  # found unwritable now, not after the whole run
         check_output_path(plot)
