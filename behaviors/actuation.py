@@ -267,6 +267,9 @@ class LaneDriving:
     let_in_headway: float = 0.5  # s: kept behind a car being let in, until it has moved over
     # m/s: above this the fast-side leader is not passed on its slow side
     no_undertaking_above: float = 60 / 3.6
+    network_chooses: bool = False  # True: the lane wish is the network's alone, both ways, and its
+    # accel action sets the headway (`time_headway`); the rules only forbid (gaps, lanes that end, the
+    # slow side, the route's lane ends, `min_time_headway`) and never move a car on their own
 
 
 def new_follower_accel(
@@ -671,6 +674,34 @@ class LaneCommand:
     held_for: np.ndarray  # [N] s the car has been held up (`held_up`) without a break
 
 
+def _rule_wishes(
+    traffic: LaneTraffic,
+    lateral: LaneDriving,
+    lane_leads_on: np.ndarray | None,
+    habits: LaneHabits | None,
+    held_for: np.ndarray | None,
+    steer: np.ndarray,
+    dt: float,
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray, np.ndarray]:
+    """(slow side free, held up, seconds held up, steer) as the rules of the road and the habits
+    make them: keeping right where the slow side is free, passing a slower leader once patience
+    runs out, and (with habits) the slow side the rules' alone."""
+    free = slow_side_free(traffic, lateral, lane_leads_on) if lateral.keep_right else None
+    if free is not None and habits is not None:
+        free &= habits.overtakes
+    margin, patient = (None, None) if habits is None else (habits.pass_margin, ~habits.overtakes)
+    held = held_up(traffic, lateral, margin, patient) if lateral.keep_right else None
+    waited = np.zeros(len(steer))
+    if held is not None:
+        waited = np.where(held, (0.0 if held_for is None else held_for) + dt, 0.0)
+    if habits is not None and held is not None:  # the slow side is the rules' alone
+        if free is not None:  # waiting to pass is no time to move right
+            free &= ~held
+        held = held & (waited >= habits.patience - 1e-9)
+        steer = np.where(habits.overtakes & held, 1.0, np.maximum(steer, 0.0))
+    return free, held, waited, steer
+
+
 def actuate_lanes(
     actions: np.ndarray,
     speed: np.ndarray,
@@ -699,6 +730,7 @@ def actuate_lanes(
     held_for: np.ndarray | None = None,
     lane_followers: tuple[np.ndarray, np.ndarray] | None = None,
     asking: np.ndarray | None = None,
+    time_headway: np.ndarray | None = None,
 ) -> LaneCommand:
     """One control step of the traffic driver for all agents.
 
@@ -719,10 +751,17 @@ def actuate_lanes(
     ([N, 2] bool; None: nobody) whether the fast-side and slow-side leader wants to come over
     (`letting_in`). A car that wants more than the
     limit (`desired_speed` above `speed_limit`) drives at what it wants, as a share of real
-    drivers and of SUMO's do.
+    drivers and of SUMO's do. `time_headway` [N] s (None: the law's) is the headway each car follows
+    its leaders at.
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
     traffic = lane_traffic(speed, desired_speed, gap, other_speed, lateral.following)
+    if time_headway is not None:  # the car's own following; its new followers keep the law's
+        own_law = replace(lateral.following, time_headway=time_headway)  # type: ignore[arg-type]
+        leaders = behind_leader(
+            traffic.free, gap[:, [0, 2, 4]].T, traffic.known_speed[:, [0, 2, 4]].T, own_law
+        )
+        traffic = replace(traffic, lead_accel=leaders.T)
     leave, leaving, lanes_go_on = None, None, True
     if lateral.keep_right and lane_leads_on is not None:
         soon = ends_soon(speed, lateral)
@@ -736,19 +775,12 @@ def actuate_lanes(
         shorter = lane_leads_on[:, 1:] < lane_leads_on[:, :1] - lateral.shorter_lane_m
         lanes_go_on = (lane_leads_on[:, 1:] >= soon[:, None]) & (~shorter | leaving)
     acceptable = gap_acceptable(traffic, lateral, leaving, lane_followers) & lanes_go_on
-    free = slow_side_free(traffic, lateral, lane_leads_on) if lateral.keep_right else None
-    if free is not None and habits is not None:
-        free &= habits.overtakes
-    margin, patient = (None, None) if habits is None else (habits.pass_margin, ~habits.overtakes)
-    held = held_up(traffic, lateral, margin, patient) if lateral.keep_right else None
-    waited = np.zeros(len(steer))
-    if held is not None:
-        waited = np.where(held, (0.0 if held_for is None else held_for) + dt, 0.0)
-    if habits is not None and held is not None:  # the slow side is the rules' alone
-        if free is not None:  # waiting to pass is no time to move right
-            free &= ~held
-        held = held & (waited >= habits.patience - 1e-9)
-        steer = np.where(habits.overtakes & held, 1.0, np.maximum(steer, 0.0))
+    free: np.ndarray | None
+    held: np.ndarray | None
+    if lateral.network_chooses:  # no rule wishes for a lane: the envelope only forbids
+        free, held, waited = np.zeros(len(steer), bool), np.ones(len(steer), bool), np.zeros(len(steer))
+    else:
+        free, held, waited, steer = _rule_wishes(traffic, lateral, lane_leads_on, habits, held_for, steer, dt)
     heading = lane_intent(
         steer,
         changing,
@@ -768,7 +800,10 @@ def actuate_lanes(
     into = traffic.lead_accel[np.arange(len(steer)), np.where(heading > 0, 1, np.where(heading < 0, 2, 0))]
     accel = np.clip(actions[:, 1], 0.0, 1.0)
     brake = np.clip(actions[:, 2], 0.0, 1.0)
-    adjust = 2.0 * lateral.accel_span * (accel - 0.5) - car.max_brake * brake
+    if lateral.network_chooses:  # its accel chose the headway (`time_headway`); brake brakes harder
+        adjust = -car.max_brake * brake
+    else:
+        adjust = 2.0 * lateral.accel_span * (accel - 0.5) - car.max_brake * brake
     if lateral.keep_right:  # the target lane's leader and the fast-side leader bound the policy too
         bound = np.minimum(np.where(heading != 0, into, np.inf), reaching)
         bound = np.minimum(bound, not_undertaking(traffic, lateral, far_fast_leader))

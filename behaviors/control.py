@@ -165,7 +165,11 @@ class Driver(Protocol):
         """m/s: the fastest sideways move it makes, which SUMO is told (`SimOptions.agent_max_speed_lat`)."""
         ...
 
-    def new_rows(self, count: int, desired_fraction: np.ndarray | None) -> Any:
+    def draw_style(self, behaviour_id: np.ndarray, rng: np.random.Generator) -> Any:
+        """Each new agent's style (what `new_rows` takes), drawn for its behaviour."""
+        ...
+
+    def new_rows(self, count: int, style: Any) -> Any:
         """Its own per-agent rows for `count` new agents (None if it keeps none)."""
         ...
 
@@ -231,12 +235,12 @@ class Fleet:
         ids: list[str],
         speed: np.ndarray,
         behaviour_id: np.ndarray,
-        desired_fraction: np.ndarray | None = None,
+        style: Any = None,
     ) -> None:
         """New agents at the end; their derived rows come with the next `sense`.
 
-        `desired_fraction` (drivers that use one): the share of the local speed limit each agent
-        holds when its lane is free."""
+        `style` (drivers that use one, `Driver.draw_style`): how each agent wants to drive, such as
+        the share of the local speed limit it holds when its lane is free."""
         r, zeros, n = self.rows, np.zeros(len(ids)), len(ids)
         self.rows = AgentRows(
             ids=r.ids + ids,
@@ -248,7 +252,7 @@ class Fleet:
             lane_row=np.concatenate([r.lane_row, np.full(n, -1, np.int64)]),
             last_move=np.concatenate([r.last_move, np.full(n, np.nan)]),
             shape_pos=np.concatenate([r.shape_pos, zeros]),
-            own=concat_rows(r.own, self.driver.new_rows(n, desired_fraction)),
+            own=concat_rows(r.own, self.driver.new_rows(n, style)),
         )
 
     def keep(self, mask: np.ndarray) -> None:

@@ -18,6 +18,7 @@ from gymnasium import spaces
 from behaviors.actuation import (
     Actuation,
     CarModel,
+    LaneCommand,
     LaneDriving,
     LaneHabits,
     actuate,
@@ -46,6 +47,16 @@ from behaviors.lanes import surroundings as lane_surroundings
 from behaviors.rewards import TERM_NAMES, TRAFFIC_TERM_NAMES
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT, AgentFrame, neighbours, observe
 from behaviors.sim import SumoSim
+from behaviors.styles import (
+    HEADWAY_RANGE,
+    PRESETS,
+    Styles,
+    action_of_headway,
+    desired_fractions,
+    draw_styles,
+    fixed_styles,
+    headway_of_action,
+)
 
 JUNCTION_LEADS_ON = 1e4
 """m: inside a junction every lane counts as leading on; SUMO is asked again on the next lane."""
@@ -103,7 +114,12 @@ class PaperDriver:
             low, high = np.append(low, 0.0), np.append(high, 1.0)
         return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
 
-    def new_rows(self, count: int, desired_fraction: np.ndarray | None) -> None:
+    def draw_style(self, behaviour_id: np.ndarray, rng: np.random.Generator) -> Styles:
+        """Desired speeds, which the paper's driver does not use: drawn all the same, so that a run's
+        random stream does not depend on the driver."""
+        return fixed_styles(desired_fractions(behaviour_id, rng))
+
+    def new_rows(self, count: int, style: Styles | None) -> None:
         return None
 
     def observe(self, fleet: Fleet, sim: SumoSim, sensing: Sensing, with_id: bool) -> Observed:
@@ -150,6 +166,8 @@ class TrafficRows:
     around: Surroundings | None = None  # leaders and followers at the last sensing
     lanes: LaneAgents | None = None  # the agents in their lanes at the last sensing
     asking: np.ndarray | None = None  # [N, 2] the fast-side, slow-side leader asks to come over (ditto)
+    time_headway: np.ndarray = field(default_factory=lambda: np.zeros(0))  # s, the style's (StyledDriver)
+    eagerness: np.ndarray = field(default_factory=lambda: np.zeros(0))  # to pass, the style's (StyledDriver)
 
 
 class TrafficDriver:
@@ -200,9 +218,14 @@ class TrafficDriver:
             dtype=np.float32,
         )
 
-    def new_rows(self, count: int, desired_fraction: np.ndarray | None) -> TrafficRows:
+    def draw_style(self, behaviour_id: np.ndarray, rng: np.random.Generator) -> Styles:
+        """Each agent's desired speed as a share of the local limit (its law's headway is the same for
+        all, and its habits are its behaviour's)."""
+        return fixed_styles(desired_fractions(behaviour_id, rng))
+
+    def new_rows(self, count: int, style: Styles | None) -> TrafficRows:
         zeros = np.zeros(count)
-        desired = zeros if desired_fraction is None else np.asarray(desired_fraction, float)
+        desired = zeros if style is None else np.asarray(style.desired_fraction, float)
         return TrafficRows(
             desired_fraction=desired,
             lateral_speed=zeros,
@@ -218,6 +241,8 @@ class TrafficDriver:
             around=None,
             lanes=None,
             asking=None,
+            time_headway=zeros,
+            eagerness=zeros,
         )
 
     def observe(self, fleet: Fleet, sim: SumoSim, sensing: Sensing, with_id: bool) -> Observed:
@@ -387,18 +412,38 @@ class TrafficDriver:
         return f.on_normal_edge & ~entering
 
     def actuate(self, fleet: Fleet, actions: np.ndarray) -> Actuation:
+        lanes = fleet.rows.own.lanes
+        assert lanes is not None
+        return self._carry(fleet, self._command(fleet, actions, self.lateral, self.habits(lanes)))
+
+    def _command(
+        self,
+        fleet: Fleet,
+        actions: np.ndarray,
+        lateral: LaneDriving,
+        habits: LaneHabits | None,
+        time_headway: np.ndarray | None = None,
+    ) -> LaneCommand:
+        """What `actuate_lanes` makes of `actions` for the fleet as last sensed (changes no rows)."""
         r, f, own = fleet.rows, fleet.rows.frame, fleet.rows.own
         lanes, around = own.lanes, own.around
         assert f is not None and lanes is not None and around is not None
-        command = actuate_lanes(
+        return actuate_lanes(
             actions, r.speed, lanes.desired_speed, around.gap, around.other_speed,
             own.lateral_speed, own.lateral_accel, own.changing, lanes.lane_offset, lanes.lane_width,
             lanes.lanes - 1 - lanes.lane_number, lanes.lane_number, f.offset, f.half_width, f.speed_limit,
-            fleet.dt, fleet.car, self.lateral, r.side_limit, r.speed_cap, lanes.lane_leads_on,
-            self.may_begin(fleet), self.habits(lanes), (around.far_fast_gap, around.far_fast_speed),
+            fleet.dt, fleet.car, lateral, r.side_limit, r.speed_cap, lanes.lane_leads_on,
+            self.may_begin(fleet), habits, (around.far_fast_gap, around.far_fast_speed),
             own.held_for,
-            (around.lane_follower_gap, around.lane_follower_speed), own.asking,
+            (around.lane_follower_gap, around.lane_follower_speed), own.asking, time_headway,
         )  # fmt: skip
+
+    @staticmethod
+    def _carry(fleet: Fleet, command: LaneCommand, held_for: bool = True) -> Actuation:
+        """The command's actuation; the state it carries to the next step goes into the rows of the
+        agents that drive themselves (`held_for`: the seconds held up too)."""
+        r, f, own = fleet.rows, fleet.rows.frame, fleet.rows.own
+        assert f is not None
         # a junction's internal edge holds only the lanes of some connections, not the
         # carriageway: the move stays clamped to it, but leaving it is not off the road
         result = replace(command.actuation, off_track=command.actuation.off_track & f.on_normal_edge)
@@ -406,14 +451,92 @@ class TrafficDriver:
         mine = ~r.handed  # SUMO drives the others: no lane change of ours goes on
         own.changing = np.where(mine, command.changing, 0)
         own.lateral_accel = np.where(mine, command.lateral_accel, 0.0)
-        own.held_for = np.where(mine, command.held_for, 0.0)
+        if held_for:
+            own.held_for = np.where(mine, command.held_for, 0.0)
         own.lateral_speed = np.where(mine, result.lateral_speed, 0.0)
         return result
+
+
+STYLED_LAYOUT = (*TRAFFIC_LAYOUT[:-1], ("time_headway", 1), ("eagerness", 1))
+"""The traffic observation with the driver's style in place of the behaviour id (its desired speed
+is already among it)."""
+STYLED_OBS_SIZE = TRAFFIC_OBS_SIZE + 1
+STYLED_LANES = LaneDriving(network_chooses=True, min_time_headway=0.5)
+"""The envelope of the styled driver: the network chooses lanes and headways; no car follows closer
+than 0.5 s, well under any human style (HEADWAY_RANGE starts there too)."""
+
+
+class StyledDriver(TrafficDriver):
+    """The learned traffic driver: each agent has a style (styles.py: desired speed, time headway,
+    eagerness to pass), which the one shared network sees and drives. The network chooses: its steer
+    is the lane wish, both ways, and its accel the headway to follow at (`headway_of_action`); what
+    stays hand-written only forbids (`LaneDriving.network_chooses`). The hand-written traffic driver's
+    rules, given each style's habits, are its teacher (`teach`)."""
+
+    name = "styled"
+    normalisation = TrafficDriver.normalisation + ", time headway/3 s, eagerness in [0, 1]"
+
+    def __init__(self, lateral: LaneDriving | None = None) -> None:
+        super().__init__(STYLED_LANES if lateral is None else lateral)
+        self.population = PRESETS["default"]
+        self._teacher_lanes = replace(self.lateral, network_chooses=False)
+
+    def obs_size(self, with_id: bool) -> int:
+        return STYLED_OBS_SIZE
+
+    def observation_layout(self, with_id: bool) -> str:
+        return "styled:" + "+".join(name for name, _ in STYLED_LAYOUT)
+
+    def observation_space(self, with_id: bool) -> spaces.Box:
+        return spaces.Box(
+            np.full(STYLED_OBS_SIZE, -1.5, np.float32),
+            np.full(STYLED_OBS_SIZE, 1.5, np.float32),
+            dtype=np.float32,
+        )
+
+    def draw_style(self, behaviour_id: np.ndarray, rng: np.random.Generator) -> Styles:
+        return draw_styles(behaviour_id, rng, self.population)
+
+    def new_rows(self, count: int, style: Styles | None) -> TrafficRows:
+        rows = super().new_rows(count, style)
+        style = fixed_styles(np.ones(count)) if style is None else style
+        rows.time_headway, rows.eagerness = style.time_headway, style.eagerness
+        return rows
+
+    def observe(self, fleet: Fleet, sim: SumoSim, sensing: Sensing, with_id: bool) -> Observed:
+        observed = super().observe(fleet, sim, sensing, with_id)
+        own = fleet.rows.own
+        style = np.stack([own.time_headway / HEADWAY_RANGE[1], own.eagerness], axis=1).astype(np.float32)
+        return replace(observed, obs=np.concatenate([observed.obs[:, :-1], style], axis=1))
+
+    def teacher_habits(self, eagerness: np.ndarray) -> LaneHabits:
+        """The rules' habits of a style: every driver keeps right; the eager pass a leader a little
+        slower than they want at once, the reluctant only a much slower one after a while."""
+        return LaneHabits(np.ones(len(eagerness), bool), 8.0 - 6.0 * eagerness, 10.0 - 9.5 * eagerness)
+
+    def teach(self, fleet: Fleet) -> np.ndarray:
+        """[N, 3] float32: the actions that ask for what the hand-written rules, with each style's
+        habits and headway, would do now: the lane they head for as steer (-1, 0, +1), the style's
+        headway as accel, no brake. Keeps the seconds each agent has been held up (the rules'
+        patience), which the network's own actuation leaves alone."""
+        own = fleet.rows.own
+        n = len(own.eagerness)
+        habits = self.teacher_habits(own.eagerness)
+        neutral = np.tile(np.array([0.0, 0.5, 0.0]), (n, 1))  # the law as it is: no push, no brake
+        command = self._command(fleet, neutral, self._teacher_lanes, habits, own.time_headway)
+        own.held_for = np.where(~fleet.rows.handed, command.held_for, 0.0)
+        steer = command.changing.astype(np.float32)
+        return np.stack([steer, action_of_headway(own.time_headway), np.zeros(n)], axis=1).astype(np.float32)
+
+    def actuate(self, fleet: Fleet, actions: np.ndarray) -> Actuation:
+        command = self._command(fleet, actions, self.lateral, None, headway_of_action(actions[:, 1]))
+        return self._carry(fleet, command, held_for=False)
 
 
 DRIVERS: dict[str, type[PaperDriver] | type[TrafficDriver]] = {
     PaperDriver.name: PaperDriver,
     TrafficDriver.name: TrafficDriver,
+    StyledDriver.name: StyledDriver,
 }
 """Every driver model by name: `--driver NAME`, and the name a checkpoint records."""
 

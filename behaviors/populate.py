@@ -65,7 +65,7 @@ from behaviors.routes import RoutePool, misplaced, route_graph
 from behaviors.scenario_config import ScenarioConfig, read_sumocfg, run_as_sumocfg, share_draw
 from behaviors.sim import SimOptions, SumoSim, VehicleState, check_display
 from behaviors.timing import PhaseTimer
-from behaviors.traffic_env import VTYPES, desired_fractions
+from behaviors.traffic_env import VTYPES
 from sumo_scenarios import get_scenario
 
 BACKGROUND_TYPE = "behave_background"
@@ -528,7 +528,8 @@ class Population:
         agents = [v for v in joined if self.pending[v] != "background"]
         if agents:
             behaviour = np.array([1.0 if self.pending[v] == "overtaker" else 0.0 for v in agents])
-            self.fleet.add(agents, sim.read_speeds(agents), behaviour, desired_fractions(behaviour, self.rng))
+            style = self.fleet.driver.draw_style(behaviour, self.rng)
+            self.fleet.add(agents, sim.read_speeds(agents), behaviour, style)
             self.log.join(agents, [self.pending[v] for v in agents], time)
         self.background_ids.update(v for v in joined if self.pending[v] == "background")
         self.summary.vehicles += len(joined)
@@ -614,7 +615,8 @@ class Population:
             sim.set_agent_type(vid, OVERTAKER_TYPE if kind == "overtaker" else KEEPER_TYPE)
         sim.take_control(agents)
         behaviour = np.array([1.0 if kind == "overtaker" else 0.0 for kind in kinds])
-        self.fleet.add(agents, sim.read_speeds(agents), behaviour, desired_fractions(behaviour, self.rng))
+        style = self.fleet.driver.draw_style(behaviour, self.rng)
+        self.fleet.add(agents, sim.read_speeds(agents), behaviour, style)
         self.log.join(agents, kinds, time)
 
     def _observe_agents(self, present: np.ndarray, speed: np.ndarray) -> None:

@@ -38,13 +38,6 @@ from behaviors.sim import SimOptions, SumoSim
 from sumo_scenarios import Scenario, data_dir, get_scenario, route_edges, training_roads
 from sumo_scenarios.build import VTYPES_FILE
 
-DESIRED_SPEED = {0.0: (0.85, 1.0), 1.0: (1.02, 1.12)}
-"""Desired speed as a fraction of the limit, drawn per agent: keepers (0) and overtakers (1). Drivers
-want about the limit (SUMO's cars: speed factor 1 +- 0.1); keepers that wanted 72-90% of it cut a
-road's capacity by 13% at 20 cars per lane-km, the slowest setting the pace of whole lanes.
-Overtakers are the faster drivers, up to SUMO's top sixth: wanting 0.97-1.07 they passed only the
-slower half of SUMO's cars, and on motorway3 no more than 1.99-2.5 times as many cars per km as
-keepers (`make own-nets`, seeds 0-9), where the paper's overtakers make twice the keepers' progress."""
 SLOW_SHARE = 0.25
 """Share of SUMO's cars that drive slowly (speed factor 0.55-0.75, trucks and cautious drivers)."""
 SLOW_FACTOR = (0.55, 0.75)
@@ -82,15 +75,6 @@ inserts no closer)."""
 
 class NoRoomError(BehaveError):
     """No agent found a free place this episode (the traffic drawn was too dense): another seed may."""
-
-
-def desired_fractions(behaviour_id: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Desired speed per agent as a share of the local limit: overtakers want more than keepers."""
-    out = np.empty(len(behaviour_id))
-    for flag, (low, high) in DESIRED_SPEED.items():
-        mask = behaviour_id == flag
-        out[mask] = rng.uniform(low, high, mask.sum())
-    return out
 
 
 def background_speed_factors(count: int, rng: np.random.Generator) -> np.ndarray:
@@ -390,7 +374,7 @@ class TrafficEnv(BehaveEnv):
         sim.take_control(ids)
         behaviour = self.slot_behaviour[slots]
         self.fleet = self._new_fleet()
-        self.fleet.add(ids, sim.read_speeds(ids), behaviour, desired_fractions(behaviour, rng))
+        self.fleet.add(ids, sim.read_speeds(ids), behaviour, self.fleet.driver.draw_style(behaviour, rng))
         self.agents = ids
         self._live_slots = slots
         self.progress = np.zeros(self.config.n_agents)

@@ -25,6 +25,7 @@ from behaviors.lanes import TRAFFIC_OBS_SIZE
 from behaviors.populate import PRETRAINED, config_from, populate
 from behaviors.scenario_config import read_sumocfg, share_draw
 from behaviors.sim import COLLISION_OPTIONS, SimOptions, SumoSim
+from behaviors.styles import fixed_styles
 from behaviors.sumo_home import sumo_binary
 from behaviors.timing import PhaseTimer
 from sumo_scenarios import get_scenario
@@ -294,7 +295,7 @@ def test_an_agent_stops_at_a_red_light_instead_of_entering_the_junction(tmp_path
         sim.add_vehicle("agent", "through", "behave_keeper", lane=0, pos=20.0, speed=20.0)
         sim.step()
         sim.take_control(["agent"])
-        fleet.add(["agent"], np.array([20.0]), np.array([0.0]), np.array([0.9]))
+        fleet.add(["agent"], np.array([20.0]), np.array([0.0]), fixed_styles(np.array([0.9])))
         lanes = set()
         for _ in range(300):  # 60 s
             fleet.sense(sim, sim.read_vehicles(), True)

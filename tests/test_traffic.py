@@ -46,6 +46,7 @@ from behaviors.rewards import TrafficStep, TrafficWeights, traffic_rewards
 from behaviors.sensors import nearest_per_slot, neighbours
 from behaviors.shield import surroundings as shield_surroundings
 from behaviors.sim import SimOptions, SumoSim
+from behaviors.styles import fixed_styles
 from behaviors.sumo_home import sumo_binary
 from behaviors.timing import PhaseTimer
 from behaviors.traffic_env import CRAWL_CARS, CRAWL_GAP, CRAWL_SPEED, queue_places
@@ -949,7 +950,7 @@ def keeper_on(
         sim.add_vehicle("agent", "route", "behave_keeper", lane=lane, pos=pos, speed=speed)
         sim.step()
         sim.take_control(["agent"])
-        fleet.add(["agent"], np.array([speed]), np.array([0.0]), np.array([0.8]))
+        fleet.add(["agent"], np.array([speed]), np.array([0.0]), fixed_styles(np.array([0.8])))
         yield sim, fleet
 
 
@@ -1059,7 +1060,7 @@ def test_the_fast_side_is_the_higher_lane_index_in_right_and_left_hand_nets(tmp_
         sim.add_vehicle("beside", "main", "behave_passive", lane=2, pos=102.0, speed=20.0)
         sim.step()
         sim.take_control(["agent"])
-        fleet.add(["agent"], np.array([20.0]), np.array([1.0]), np.array([0.9]))
+        fleet.add(["agent"], np.array([20.0]), np.array([1.0]), fixed_styles(np.array([0.9])))
         obs = fleet.sense(sim, sim.read_vehicles(), True)
     gap = obs[0, TRAFFIC_SLICES["gap"]]
     assert gap[2] == 0.0  # fast-side leader alongside

@@ -1,0 +1,149 @@
+"""Driver styles: what makes one driver unlike another, drawn per agent and fed to the one shared
+network (the paper's behaviour id, generalised).
+
+Real drivers are a population: desired speeds, following headways and the eagerness to pass
+differ far more between people than within one person's trip (highD: about a third of cars come
+closer than 1 s to their leader at some point, the median closest headway is about 1.4 s; the
+calibration literature starts from normal speed factors with a spread of 0.1-0.15 and lognormal
+headways with a median near 1.4 s). Keepers and overtakers are two presets of these draws, so
+existing command lines keep their meaning; a population file gives other distributions.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from behaviors.errors import BehaveError
+
+DESIRED_SPEED = {0.0: (0.85, 1.0), 1.0: (1.02, 1.12)}
+"""Desired speed as a fraction of the limit, drawn per agent: keepers (0) and overtakers (1). Drivers
+want about the limit (SUMO's cars: speed factor 1 +- 0.1); keepers that wanted 72-90% of it cut a
+road's capacity by 13% at 20 cars per lane-km, the slowest setting the pace of whole lanes.
+Overtakers are the faster drivers, up to SUMO's top sixth: wanting 0.97-1.07 they passed only the
+slower half of SUMO's cars, and on motorway3 no more than 1.99-2.5 times as many cars per km as
+keepers (`make own-nets`, seeds 0-9), where the paper's overtakers make twice the keepers' progress."""
+
+HEADWAY_RANGE = (0.5, 3.0)
+"""s: the time headways a style may ask for, and that the network's accel action spans."""
+
+
+@dataclass(frozen=True)
+class StyleDistribution:
+    """How one kind of driver's style is drawn: speed factor ~ normal, clipped; time headway ~
+    lognormal (median, sigma of its log), clipped to HEADWAY_RANGE; eagerness to pass ~ Beta."""
+
+    speed_mean: float
+    speed_sd: float
+    speed_range: tuple[float, float]
+    headway_median: float
+    headway_sigma: float
+    eagerness_a: float
+    eagerness_b: float
+
+    def check(self, name: str) -> None:
+        low, high = self.speed_range
+        ok = (
+            0.3 <= low <= self.speed_mean <= high <= 1.6
+            and self.speed_sd >= 0
+            and HEADWAY_RANGE[0] <= self.headway_median <= HEADWAY_RANGE[1]
+            and 0 <= self.headway_sigma <= 1.0
+            and self.eagerness_a > 0
+            and self.eagerness_b > 0
+        )
+        if not ok:
+            raise BehaveError(f"population '{name}': a style distribution is out of range: {self}")
+
+
+KEEPER = StyleDistribution(0.93, 0.06, (0.8, 1.05), 1.6, 0.3, 2.0, 6.0)
+"""Lane keepers: at or under the limit, longer headways, seldom pass (eagerness mean 0.25)."""
+OVERTAKER = StyleDistribution(1.07, 0.06, (0.95, 1.25), 1.25, 0.3, 6.0, 2.0)
+"""Overtakers: faster, closer, keen to pass (eagerness mean 0.75)."""
+PRESETS = {"default": (KEEPER, OVERTAKER)}
+"""Named populations: the keeper and the overtaker distribution."""
+
+
+@dataclass(frozen=True)
+class Styles:
+    """One style per agent (rows as the fleet's)."""
+
+    desired_fraction: np.ndarray  # [N] desired speed as a share of the local limit
+    time_headway: np.ndarray  # [N] s: the headway the driver wants to follow at
+    eagerness: np.ndarray  # [N] in [0, 1]: how readily it passes a slower car
+
+    def __len__(self) -> int:
+        return len(self.desired_fraction)
+
+
+def draw_styles(
+    behaviour_id: np.ndarray,
+    rng: np.random.Generator,
+    population: tuple[StyleDistribution, ...] = (KEEPER, OVERTAKER),
+) -> Styles:
+    """A style for each agent from its behaviour's distribution (0 keeper, 1 overtaker)."""
+    n = len(behaviour_id)
+    speed, headway, eager = np.empty(n), np.empty(n), np.empty(n)
+    for flag, dist in enumerate(population):
+        mask = behaviour_id == flag
+        k = int(mask.sum())
+        speed[mask] = np.clip(rng.normal(dist.speed_mean, dist.speed_sd, k), *dist.speed_range)
+        headway[mask] = np.clip(
+            dist.headway_median * np.exp(rng.normal(0.0, dist.headway_sigma, k)), *HEADWAY_RANGE
+        )
+        eager[mask] = rng.beta(dist.eagerness_a, dist.eagerness_b, k)
+    return Styles(speed, headway, eager)
+
+
+def fixed_styles(desired_fraction: np.ndarray) -> Styles:
+    """Styles that differ only in desired speed: the middle of HEADWAY_RANGE's usual drivers (1.4 s)
+    and of eagerness (0.5), for drivers whose behaviour is set otherwise."""
+    n = len(desired_fraction)
+    return Styles(np.asarray(desired_fraction, float), np.full(n, 1.4), np.full(n, 0.5))
+
+
+def read_population(name_or_path: str) -> tuple[StyleDistribution, StyleDistribution]:
+    """A preset's name, or a JSON file {"keeper": {...}, "overtaker": {...}} whose objects hold every
+    field of StyleDistribution."""
+    if name_or_path in PRESETS:
+        return PRESETS[name_or_path]
+    path = Path(name_or_path)
+    if not path.is_file():
+        raise BehaveError(f"population '{name_or_path}': no such preset ({', '.join(PRESETS)}) or file")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        names = [f.name for f in fields(StyleDistribution)]
+        out = []
+        for kind in ("keeper", "overtaker"):
+            given = data[kind]
+            if set(given) != set(names):
+                raise BehaveError(f"population {path}: '{kind}' needs exactly the fields {', '.join(names)}")
+            out.append(StyleDistribution(**{**given, "speed_range": tuple(given["speed_range"])}))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise BehaveError(f"population {path}: cannot read it ({exc})") from None
+    for kind, dist in zip(("keeper", "overtaker"), out, strict=True):
+        dist.check(f"{path}:{kind}")
+    return out[0], out[1]
+
+
+def headway_of_action(accel: np.ndarray) -> np.ndarray:
+    """[N] s: the time headway the network's accel action in [0, 1] asks for (1: the closest)."""
+    low, high = HEADWAY_RANGE
+    return high - (high - low) * np.clip(accel, 0.0, 1.0)
+
+
+def action_of_headway(headway: np.ndarray) -> np.ndarray:
+    """The accel action that asks for `headway` (the inverse of `headway_of_action`)."""
+    low, high = HEADWAY_RANGE
+    return (high - np.clip(headway, low, high)) / (high - low)
+
+
+def desired_fractions(behaviour_id: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Desired speed per agent as a share of the local limit: overtakers want more than keepers."""
+    out = np.empty(len(behaviour_id))
+    for flag, (low, high) in DESIRED_SPEED.items():
+        mask = behaviour_id == flag
+        out[mask] = rng.uniform(low, high, mask.sum())
+    return out

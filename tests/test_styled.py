@@ -1,0 +1,137 @@
+"""The styled driver: driver styles drawn from a population, the network choosing lanes and headways
+with the rules only forbidding, and the teacher that gives the network its first driving."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from behaviors.actuation import CarModel, LaneDriving, actuate_lanes
+from behaviors.drivers import STYLED_LANES, STYLED_OBS_SIZE, StyledDriver
+from behaviors.errors import BehaveError
+from behaviors.styles import (
+    HEADWAY_RANGE,
+    KEEPER,
+    OVERTAKER,
+    action_of_headway,
+    draw_styles,
+    headway_of_action,
+    read_population,
+)
+from tests.test_traffic import NO_LEADERS, leaders_of
+
+
+def lane_step(
+    steer: float,
+    accel: float = 0.5,
+    leaders=NO_LEADERS,
+    lateral: LaneDriving = STYLED_LANES,
+    lane: int = 1,
+    lane_leads_on=(3000.0, 3000.0, 3000.0),
+    speed: float = 30.0,
+    time_headway: float | None = None,
+    changing: int = 0,
+):
+    """One actuate_lanes step of one car in lane `lane` of three 3.5 m lanes, wanting 33 m/s."""
+    headway = None if time_headway is None else np.array([time_headway])
+    if headway is None and lateral.network_chooses:
+        headway = headway_of_action(np.array([accel]))
+    return actuate_lanes(
+        np.array([[steer, accel, 0.0]]), np.array([speed]), np.array([33.0]), *leaders,
+        np.zeros(1), np.zeros(1),
+        np.array([changing]), np.zeros(1), np.array([3.5]), np.array([2 - lane]), np.array([lane]),
+        np.array([(lane - 1) * 3.5]), np.array([5.25]), np.array([33.3]), 0.2, CarModel(), lateral,
+        lane_leads_on=np.array([lane_leads_on]), time_headway=headway,
+    )  # fmt: skip
+
+
+def test_styles_are_drawn_per_behaviour_reproducibly_and_within_their_ranges():
+    behaviour = np.repeat([0.0, 1.0], 5000)
+    styles = draw_styles(behaviour, np.random.default_rng(4))
+    again = draw_styles(behaviour, np.random.default_rng(4))
+    np.testing.assert_array_equal(styles.time_headway, again.time_headway)
+    keepers, overtakers = behaviour == 0, behaviour == 1
+    assert HEADWAY_RANGE[0] <= styles.time_headway.min() and styles.time_headway.max() <= HEADWAY_RANGE[1]
+    assert np.median(styles.time_headway[keepers]) == pytest.approx(KEEPER.headway_median, abs=0.05)
+    assert np.median(styles.time_headway[overtakers]) == pytest.approx(OVERTAKER.headway_median, abs=0.05)
+    assert styles.eagerness[overtakers].mean() > 0.7 > 0.3 > styles.eagerness[keepers].mean()
+    assert styles.desired_fraction[overtakers].mean() > styles.desired_fraction[keepers].mean() + 0.1
+    assert np.std(styles.desired_fraction[keepers]) == pytest.approx(KEEPER.speed_sd, abs=0.01)
+
+
+def test_a_population_file_gives_other_distributions_and_bad_ones_are_refused(tmp_path):
+    fields = {
+        "speed_mean": 1.0, "speed_sd": 0.1, "speed_range": [0.8, 1.2], "headway_median": 2.0,
+        "headway_sigma": 0.2, "eagerness_a": 1.0, "eagerness_b": 1.0,
+    }  # fmt: skip
+    good = tmp_path / "calm.json"
+    good.write_text(json.dumps({"keeper": fields, "overtaker": fields}))
+    keeper, _ = read_population(str(good))
+    assert keeper.headway_median == 2.0 and keeper.speed_range == (0.8, 1.2)
+    assert read_population("default") == (KEEPER, OVERTAKER)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"keeper": {**fields, "headway_median": 9.0}, "overtaker": fields}))
+    with pytest.raises(BehaveError, match="out of range"):
+        read_population(str(bad))
+    missing = tmp_path / "missing.json"
+    missing.write_text(json.dumps({"keeper": fields}))
+    with pytest.raises(BehaveError, match="cannot read"):
+        read_population(str(missing))
+    with pytest.raises(BehaveError, match="no such preset"):
+        read_population("nobody")
+
+
+def test_the_accel_action_spans_the_headways_and_the_teacher_inverts_it():
+    assert headway_of_action(np.array([1.0, 0.0]))[0] == HEADWAY_RANGE[0]
+    assert headway_of_action(np.array([1.0, 0.0]))[1] == HEADWAY_RANGE[1]
+    asked = np.array([0.5, 1.0, 1.4, 2.2, 3.0])
+    np.testing.assert_allclose(headway_of_action(action_of_headway(asked)), asked)
+
+
+def test_no_rule_moves_a_car_that_the_network_keeps_in_its_lane():
+    # the middle lane, nobody anywhere: the rules keep right, the network's "no wish" is obeyed
+    assert lane_step(0.0, lateral=LaneDriving()).changing[0] == -1
+    assert lane_step(0.0).changing[0] == 0
+    assert lane_step(-1.0).changing[0] == -1  # the network moves right when it wishes
+    assert lane_step(1.0).changing[0] == 1  # and left, with nobody slower ahead to pass
+
+
+def test_the_envelope_forbids_a_change_into_a_car_a_missing_gap_or_a_lane_that_ends():
+    alongside = leaders_of(fast_lead=(2, 0.0, 30.0))
+    assert lane_step(1.0, leaders=alongside).changing[0] == 0
+    fast_follower = leaders_of(fast_follow=(3, 8.0, 38.0))  # closing in fast, 8 m behind
+    assert lane_step(1.0, leaders=fast_follower).changing[0] == 0
+    assert lane_step(-1.0, lane_leads_on=(3000.0, 3000.0, 150.0)).changing[0] == 0  # ends 150 m on
+    assert lane_step(0.0, lane=0).changing[0] == 0 and lane_step(-1.0, lane=0).changing[0] == 0  # no lane
+    # the own lane ends: the route's need moves the car whatever the network wishes
+    assert lane_step(0.0, lane_leads_on=(300.0, 3000.0, 3000.0)).changing[0] != 0
+
+
+def test_the_network_chooses_the_headway_and_the_envelope_bounds_the_closest():
+    leader = leaders_of(lead=(0, 30.0, 30.0))  # 30 m ahead at the car's 30 m/s: a 1 s gap
+    close = lane_step(0.0, accel=1.0, leaders=leader).actuation.speed[0]  # asks 0.5 s
+    far = lane_step(0.0, accel=0.0, leaders=leader).actuation.speed[0]  # asks 3.0 s
+    assert close > 30.0 > far
+    # the safety headway bounds whatever the network asks: a car at 0.3 s brakes
+    tailgating = leaders_of(lead=(0, 9.0, 30.0))
+    assert lane_step(0.0, accel=1.0, leaders=tailgating).actuation.speed[0] < 30.0
+    assert STYLED_LANES.min_time_headway < HEADWAY_RANGE[0] + 1e-9
+
+
+def test_passing_on_the_slow_side_stays_forbidden():
+    # the fast-side lane's leader drives at 25 m/s just ahead: the car may not pass it on its right
+    beside = leaders_of(fast_lead=(2, 5.0, 25.0))
+    assert lane_step(0.0, accel=1.0, leaders=beside, speed=30.0).actuation.speed[0] < 30.0
+
+
+def test_the_styled_observation_ends_with_the_style():
+    driver = StyledDriver()
+    assert driver.obs_size(True) == STYLED_OBS_SIZE
+    assert driver.observation_layout(True).endswith("time_headway+eagerness")
+    rows = driver.new_rows(2, draw_styles(np.array([0.0, 1.0]), np.random.default_rng(0)))
+    assert rows.time_headway.shape == (2,) and rows.eagerness.shape == (2,)
+    habits = driver.teacher_habits(np.array([0.0, 1.0]))
+    assert habits.overtakes.all()  # every driver keeps right
+    assert habits.pass_margin[0] > habits.pass_margin[1] and habits.patience[0] > habits.patience[1]
