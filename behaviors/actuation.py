@@ -11,7 +11,7 @@ v*cos(angle) along the lane (setSpeed) and v*sin(angle) across it
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -201,6 +201,33 @@ def following_accel(
 
 
 @dataclass(frozen=True)
+class Rules:
+    """The traffic driver's hand-written rules, each switchable alone; docs/manual/traffic-driver.md
+    tables them (motive, function, test). Motives choose a lane or a speed; limits only forbid."""
+
+    leave_ending_lane: bool = True  # strategic motive: out of a lane that stops leading on, early
+    avoid_ending_lanes: bool = True  # strategic limit: no change into a lane that ends soon
+    speed_gain: bool = True  # motive: pass a leader slower than wanted (`held_up`, habits' patience)
+    keep_right: bool = True  # motive: back to a free slow-side lane; the slow side is the rules' alone
+    give_up_lost_gap: bool = True  # limit: a change whose gap closes before the line is given up
+    letting_in: bool = True  # cooperative motive: drop back for a car whose lane ends or that asks
+    falling_in: bool = True  # strategic: drop back behind the car beside to merge into its lane
+    target_leader: bool = True  # limit: follow the leader of the lane the car heads for
+    reaching_over: bool = True  # limit: follow the leader of a lane the car's body reaches into
+    no_undertaking: bool = True  # limit: no passing on the slow side of a fast-moving lane
+    no_tailgating: bool = True  # limit: no push closer than `min_time_headway`
+
+    @classmethod
+    def none(cls) -> Rules:
+        """Every rule off: the execution layer alone (the policy's lane choice and the law)."""
+        return cls(**{f.name: False for f in fields(cls)})
+
+    @property
+    def any(self) -> bool:
+        return any(getattr(self, f.name) for f in fields(self))
+
+
+@dataclass(frozen=True)
 class LaneDriving:
     """How the traffic driver executes what its policy chooses (the paper's heading model,
     `actuate`, stays for the paper's policies).
@@ -216,7 +243,7 @@ class LaneDriving:
     Accel and brake adjust the car-following law: accel 0.5 and brake 0 drive as `following`
     says, accel 1 (0) adds (takes) `accel_span`, brake takes up to the car's max_brake.
 
-    Two rules of the road hold whatever the policy (`keep_right`, as German and most EU traffic law
+    Two rules of the road hold whatever the policy (`rules`, as German and most EU traffic law
     has them, and as SUMO's own lane changer models them): a car that wishes no change moves to the
     slow-side lane where that lane is free ahead for `free_ahead` m or `free_ahead_s` at its speed and
     has an acceptable gap; a wish for the fast-side lane counts only when a slower leader holds the
@@ -242,7 +269,7 @@ class LaneDriving:
     lag_headway: float = 1.0  # s: nor be nearer behind than this at its speed (SUMO's drivers brake
     # hard inside their 1 s; cut-ins nearer doubled their hard braking among agents)
     following: CarFollowing = CarFollowing()
-    keep_right: bool = True  # the traffic rules below; False: the policy's lane choice alone
+    rules: Rules = Rules()  # the rules of the road and the limits, each switchable alone
     free_ahead: float = 60.0  # m: the slow-side lane is free for keeping right beyond max(this, 3 s at speed)
     free_ahead_s: float = 3.0
     ending_lane_m: float = 350.0  # a change into a lane that stops leading on within max(this,
@@ -430,7 +457,7 @@ def lane_intent(
     crossed = changing * lane_offset < -lateral.arrived * lane_width
     vanished = np.where(changing > 0, lanes_fast == 0, np.where(changing < 0, lanes_slow == 0, False))
     going = np.where(crossed | vanished, 0, changing)
-    if slow_side_free is not None:
+    if slow_side_free is not None and lateral.rules.give_up_lost_gap:
         before_line = changing * lane_offset >= 0.0
         lost = ~acceptable[np.arange(len(changing)), np.where(changing > 0, 0, 1)]
         going = np.where((changing != 0) & before_line & lost, 0, going)
@@ -686,19 +713,25 @@ def _rule_wishes(
     """(slow side free, held up, seconds held up, steer) as the rules of the road and the habits
     make them: keeping right where the slow side is free, passing a slower leader once patience
     runs out, and (with habits) the slow side the rules' alone."""
-    free = slow_side_free(traffic, lateral, lane_leads_on) if lateral.keep_right else None
+    rules = lateral.rules
+    free = slow_side_free(traffic, lateral, lane_leads_on) if rules.keep_right else None
     if free is not None and habits is not None:
         free &= habits.overtakes
     margin, patient = (None, None) if habits is None else (habits.pass_margin, ~habits.overtakes)
-    held = held_up(traffic, lateral, margin, patient) if lateral.keep_right else None
+    held = held_up(traffic, lateral, margin, patient) if rules.speed_gain else None
     waited = np.zeros(len(steer))
     if held is not None:
         waited = np.where(held, (0.0 if held_for is None else held_for) + dt, 0.0)
-    if habits is not None and held is not None:  # the slow side is the rules' alone
+    if habits is not None and rules.keep_right:  # the slow side is the rules' alone
+        steer = np.maximum(steer, 0.0)
+    if habits is not None and held is not None:
         if free is not None:  # waiting to pass is no time to move right
             free &= ~held
         held = held & (waited >= habits.patience - 1e-9)
-        steer = np.where(habits.overtakes & held, 1.0, np.maximum(steer, 0.0))
+        steer = np.where(habits.overtakes & held, 1.0, steer)
+    if rules.any:  # the rules judge the lanes: none is free or a reason where its rule is off
+        free = np.zeros(len(steer), bool) if free is None else free
+        held = np.ones(len(steer), bool) if held is None else held
     return free, held, waited, steer
 
 
@@ -762,18 +795,23 @@ def actuate_lanes(
             traffic.free, gap[:, [0, 2, 4]].T, traffic.known_speed[:, [0, 2, 4]].T, own_law
         )
         traffic = replace(traffic, lead_accel=leaders.T)
+    rules = lateral.rules
     leave, leaving, lanes_go_on = None, None, True
-    if lateral.keep_right and lane_leads_on is not None:
+    if lane_leads_on is not None and rules.leave_ending_lane:
         soon = ends_soon(speed, lateral)
         leave_within = np.maximum(lateral.leave_ending_m, lateral.leave_ending_s * speed)
         ending = lane_leads_on[:, 0] < leave_within  # out of the own lane, if it ends, early on
         leave = np.where(ending & (lane_leads_on[:, 1] >= soon), 1, 0)
         leave = np.where(ending & (leave == 0) & (lane_leads_on[:, 2] >= soon), -1, leave)
         leaving = leave[:, None] == np.array([1, -1])  # [N, 2]: fast, slow side
+    if lane_leads_on is not None and rules.avoid_ending_lanes:
+        soon = ends_soon(speed, lateral)
         # no change into a lane that ends before long, nor, unless the own lane ends, into one that
         # ends well before it (a weave's, an exit's)
         shorter = lane_leads_on[:, 1:] < lane_leads_on[:, :1] - lateral.shorter_lane_m
-        lanes_go_on = (lane_leads_on[:, 1:] >= soon[:, None]) & (~shorter | leaving)
+        lanes_go_on = (lane_leads_on[:, 1:] >= soon[:, None]) & (
+            ~shorter | (False if leaving is None else leaving)
+        )
     acceptable = gap_acceptable(traffic, lateral, leaving, lane_followers) & lanes_go_on
     free: np.ndarray | None
     held: np.ndarray | None
@@ -795,8 +833,11 @@ def actuate_lanes(
         leave,
         may_begin,
     )
-    reaching = reaching_over(traffic, lane_offset, lateral_speed, lane_width, car.width)
-    follow = np.minimum(traffic.lead_accel[:, 0], reaching)
+    follow = traffic.lead_accel[:, 0]
+    reaching = np.full(len(steer), np.inf)
+    if rules.reaching_over or not rules.any:
+        reaching = reaching_over(traffic, lane_offset, lateral_speed, lane_width, car.width)
+        follow = np.minimum(follow, reaching)
     into = traffic.lead_accel[np.arange(len(steer)), np.where(heading > 0, 1, np.where(heading < 0, 2, 0))]
     accel = np.clip(actions[:, 1], 0.0, 1.0)
     brake = np.clip(actions[:, 2], 0.0, 1.0)
@@ -804,19 +845,27 @@ def actuate_lanes(
         adjust = -car.max_brake * brake
     else:
         adjust = 2.0 * lateral.accel_span * (accel - 0.5) - car.max_brake * brake
-    if lateral.keep_right:  # the target lane's leader and the fast-side leader bound the policy too
-        bound = np.minimum(np.where(heading != 0, into, np.inf), reaching)
-        bound = np.minimum(bound, not_undertaking(traffic, lateral, far_fast_leader))
-        if lane_leads_on is not None:
+    if rules.any:  # the named limits bound the policy's push too
+        bound = np.full(len(steer), np.inf)
+        if rules.target_leader:
+            bound = np.minimum(bound, np.where(heading != 0, into, np.inf))
+        if rules.reaching_over:
+            bound = np.minimum(bound, reaching)
+        if rules.no_undertaking:
+            bound = np.minimum(bound, not_undertaking(traffic, lateral, far_fast_leader))
+        if lane_leads_on is not None and rules.letting_in:
             # a car on its way to another lane leaves letting in to the next one back
             bound = np.minimum(
                 bound, np.where(heading == 0, letting_in(traffic, lane_leads_on, lateral, asking), np.inf)
             )
-        if leave is not None:
+        if leave is not None and rules.falling_in:
             waiting = np.where(heading == 0, leave, 0)
             bound = np.minimum(bound, falling_in(traffic, waiting, lateral))
-        closest = replace(lateral.following, time_headway=lateral.min_time_headway)  # no tailgating
-        bound = np.minimum(bound, behind_leader(traffic.free, gap[:, 0], traffic.known_speed[:, 0], closest))
+        if rules.no_tailgating:
+            closest = replace(lateral.following, time_headway=lateral.min_time_headway)
+            bound = np.minimum(
+                bound, behind_leader(traffic.free, gap[:, 0], traffic.known_speed[:, 0], closest)
+            )
         command = np.minimum(follow + adjust, bound)  # closest >= follow: it only limits a push
     else:
         command = np.minimum(follow, into) + adjust

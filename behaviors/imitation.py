@@ -91,17 +91,24 @@ def _reset(env: BehaveEnv, seed: int) -> np.ndarray:
     raise BehaveError("no episode with room for the agents in 5 draws")
 
 
+LANE_CHANGE_WEIGHT = 20.0
+"""How much more a state where the teacher heads for another lane counts in the fit: such states
+are about one in a hundred, and a network that never wishes for a lane is the cheap wrong answer."""
+
+
 def fit_actor(
     demos: Demonstrations, hidden: tuple[int, ...], epochs: int, seed: int, batch: int = 512
 ) -> tuple[Actor, list[float]]:
-    """An actor fitted to the teacher's actions (mean squared error on the squashed outputs, steer
-    weighted up: its -1/0/+1 is the choice that matters most); and the loss of each epoch."""
+    """An actor fitted to the teacher's actions (mean squared error on the squashed outputs; steer
+    weighted up, and the states where the teacher changes lanes by LANE_CHANGE_WEIGHT: its -1/0/+1
+    is the choice that matters most); and the loss of each epoch."""
     torch.manual_seed(seed)
     actor = Actor(demos.obs.shape[1], hidden)
     obs = torch.from_numpy(demos.obs)
-    target = torch.from_numpy(demos.actions)
+    target = torch.from_numpy(demos.actions).clone()
     target[:, 0] = target[:, 0] * 0.98  # tanh reaches +-1 only at infinity
-    weight = torch.tensor([4.0, 1.0, 1.0])
+    changing = target[:, :1].abs() > 0.5
+    weight = torch.tensor([4.0, 1.0, 1.0]) * torch.where(changing, LANE_CHANGE_WEIGHT, 1.0)
     optimiser = torch.optim.Adam(actor.parameters(), lr=1e-3)
     generator = torch.Generator().manual_seed(seed)
     losses = []
@@ -110,22 +117,26 @@ def fit_actor(
         total = 0.0
         for start in range(0, len(obs), batch):
             rows = order[start : start + batch]
-            loss = (weight * (actor(obs[rows]) - target[rows]) ** 2).mean()
+            loss = (weight[rows] * (actor(obs[rows]) - target[rows]) ** 2).mean()
             optimiser.zero_grad()
             loss.backward()
             nn.utils.clip_grad_norm_(actor.parameters(), 10.0)
             optimiser.step()
-            total += float(loss) * len(rows)
+            total += float(loss.detach()) * len(rows)
         losses.append(total / len(obs))
     return actor, losses
 
 
-def steer_agreement(actor: Actor, demos: Demonstrations) -> float:
-    """Share of states where the actor's lane wish (steer beyond +-0.5) is the teacher's."""
+def steer_agreement(actor: Actor, demos: Demonstrations) -> tuple[float, float]:
+    """Share of states where the actor's lane wish (steer beyond +-0.5) is the teacher's: over all
+    states, and over those where the teacher heads for another lane."""
     with torch.no_grad():
         steer = actor(torch.from_numpy(demos.obs))[:, 0].numpy()
     wish = np.where(steer > 0.5, 1, np.where(steer < -0.5, -1, 0))
-    return float((wish == np.rint(demos.actions[:, 0])).mean())
+    taught = np.rint(demos.actions[:, 0])
+    same = wish == taught
+    changing = taught != 0
+    return float(same.mean()), float(same[changing].mean()) if changing.any() else float("nan")
 
 
 def save_styled(path: Path, actor: Actor, demos: Demonstrations, seed: int, note: str) -> None:

@@ -2,7 +2,8 @@
 roads, then an actor fitted to them (behaviors/imitation.py).
 
     python benchmarks/make_styled.py --episodes 160 --seed 1          # collect, fit, write styled.pt
-    python benchmarks/make_styled.py --fit-only --demos runs/styled/demos_seed1.npz
+    python benchmarks/make_styled.py --episodes 10 --seed 2 --collect-only   # more, in pieces
+    python benchmarks/make_styled.py --fit-only --demos runs/styled/demos_seed1.npz --demos ...
 
 Collection is the slow part (about 15 s per 500-step episode of 8 agents on one core) and is kept in
 an .npz beside the run, so that fitting can be repeated alone.
@@ -35,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=Path, default=Path("runs/styled"))
     parser.add_argument("--demos", type=Path, action="append", help="demonstrations to fit (repeatable)")
     parser.add_argument("--fit-only", action="store_true", help="fit --demos files; collect nothing")
+    parser.add_argument("--collect-only", action="store_true", help="collect and keep; fit nothing")
     parser.add_argument("--out", type=Path, default=PRETRAINED / "styled.pt")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
@@ -48,6 +50,8 @@ def main(argv: list[str] | None = None) -> int:
         took = time.perf_counter() - start
         print(f"{len(demos)} agent-steps from {args.episodes} episodes in {took:.0f} s -> {path}")
         files.append(path)
+    if args.collect_only:
+        return 0
     if not files:
         parser.error("nothing to fit: give --demos or collect")
     parts = [np.load(f) for f in files]
@@ -58,9 +62,10 @@ def main(argv: list[str] | None = None) -> int:
     print("steer labels: " + ", ".join(f"{int(w):+d}: {int((wishes == w).sum())}" for w in (-1, 0, 1)))
     start = time.perf_counter()
     actor, losses = fit_actor(demos, HIDDEN, args.epochs, args.seed)
-    agreement = steer_agreement(actor, demos)
+    overall, on_changes = steer_agreement(actor, demos)
     print(f"fitted in {time.perf_counter() - start:.0f} s: loss {losses[0]:.4f} -> {losses[-1]:.4f}, "
-          f"lane wish as the teacher's in {100 * agreement:.2f}% of agent-steps")  # fmt: skip
+          f"lane wish as the teacher's in {100 * overall:.2f}% of agent-steps, "
+          f"{100 * on_changes:.1f}% of those heading for another lane")  # fmt: skip
     sources = ", ".join(str(f) for f in files)
     note = f"{len(demos)} agent-steps of the teacher ({sources}), {args.epochs} epochs"
     save_styled(args.out, actor, demos, args.seed, note)

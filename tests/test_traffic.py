@@ -16,6 +16,7 @@ from behaviors.actuation import (
     CarFollowing,
     CarModel,
     LaneDriving,
+    Rules,
     actuate_lanes,
     falling_in,
     following_accel,
@@ -362,7 +363,7 @@ def test_a_car_behind_a_junction_is_placed_in_the_lane_it_leads_into(linked):
 NO_LEADERS = (np.full((1, 6), np.inf), np.full((1, 6), np.nan))
 
 
-MECHANICS = LaneDriving(keep_right=False)
+MECHANICS = LaneDriving(rules=Rules.none())
 """The execution layer without the rules of the road: the policy's lane choice alone."""
 
 
@@ -793,6 +794,7 @@ def test_an_overtaker_with_a_free_slow_lane_is_asked_to_keep_to_it():
     assert terms["keep_slow_side"] == pytest.approx([0.0, 0.0])
 
 
+@pytest.mark.sumo
 def test_traffic_env_runs_an_episode_among_sumo_cars():
     env = make_env("ring", behaviour="multi", overtakers=2, keepers=2, driver="traffic", seed=3, max_steps=40)
     try:
@@ -824,6 +826,7 @@ def test_queue_places_fit_the_edge_head_first_with_at_least_sumos_gap_between_ca
     assert max(len(queue_places(600.0, car, min_gap, rng)) for _ in range(50)) == CRAWL_CARS[1]
 
 
+@pytest.mark.sumo
 def test_roads_with_queues_have_a_queue_crawling_in_the_slow_lane_while_the_others_flow(monkeypatch):
     monkeypatch.setattr(traffic_env, "CRAWL_EPISODES", 1.0)  # a queue in every episode
     env = make_env("roads+queues", behaviour="multi", overtakers=2, keepers=2, driver="traffic", seed=1,
@@ -854,6 +857,7 @@ def test_the_cars_stopped_are_the_nearest_ahead_in_each_lane_of_the_own_edge():
     assert traffic_env.cars_ahead_per_lane(lanes, pos, "e1_1", 100.0, (10.0, 150.0)) == [0, 2]
 
 
+@pytest.mark.sumo
 def test_stop_and_go_episodes_stop_the_traffic_ahead_of_an_agent_and_let_it_move_on(monkeypatch):
     monkeypatch.setattr(traffic_env, "STOP_EPISODES", 1.0)
     monkeypatch.setattr(traffic_env, "STOP_AFTER_S", (1.0, 1.0))
@@ -879,6 +883,7 @@ def test_stop_and_go_episodes_stop_the_traffic_ahead_of_an_agent_and_let_it_move
         env.close()
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("name", ["motorway3_lefthand", "carriageway2"])
 def test_lanes_and_lane_places_derived_from_positions_are_sumos_own(tmp_path, monkeypatch, name):
     """Agents still well inside last step's lane get their lane, lane position and lateral offset
@@ -968,6 +973,7 @@ def drive_on(sim: SumoSim, fleet: Fleet, steps: int = 600) -> tuple[list[str], f
     return lanes, lowest_speed
 
 
+@pytest.mark.sumo
 def test_sumo_takes_an_agent_whose_lane_becomes_an_exit_and_hands_it_back(tmp_path):
     """Without the handover SUMO stops the agent dead where lane 0 turns off its route."""
     net = exit_net(tmp_path)
@@ -986,6 +992,7 @@ def test_sumo_takes_an_agent_whose_lane_becomes_an_exit_and_hands_it_back(tmp_pa
         assert lowest_speed > 15.0  # never stopped at the end of the exit lane
 
 
+@pytest.mark.sumo
 def test_with_the_rules_of_the_road_an_agent_leaves_a_lane_that_ends_by_itself(tmp_path):
     with keeper_on(exit_net(tmp_path), ["A", "B"], lane=0, pos=50.0, speed=25.0) as (sim, fleet):
         lanes, lowest_speed = drive_on(sim, fleet)
@@ -993,6 +1000,7 @@ def test_with_the_rules_of_the_road_an_agent_leaves_a_lane_that_ends_by_itself(t
         assert "agent" not in sim.vehicle_ids() and lowest_speed > 15.0
 
 
+@pytest.mark.sumo
 def test_sumo_chooses_the_speed_of_an_agent_it_took(tmp_path):
     """The agent's last commanded speed must not stick: SUMO drives a handed-over car as its own."""
     net = exit_net(tmp_path)
@@ -1007,6 +1015,7 @@ def test_sumo_chooses_the_speed_of_an_agent_it_took(tmp_path):
         assert speeds_while_handed and max(speeds_while_handed) > 15.0
 
 
+@pytest.mark.sumo
 def test_an_agent_leaving_by_a_one_lane_ramp_is_handed_over_before_it_and_not_given_back(tmp_path):
     """Its lane leads on to the ramp, so only the ramp's single lane told SUMO to take it, at the
     junction; and a car given back on a lane that soon leaves the carriageway drifted off it."""
@@ -1025,6 +1034,7 @@ def test_an_agent_leaving_by_a_one_lane_ramp_is_handed_over_before_it_and_not_gi
         assert fleet.handovers == 1
 
 
+@pytest.mark.sumo
 def test_an_agent_reaching_over_a_lane_that_drops_is_centred_by_sumo_and_stays_on_the_road(tmp_path):
     """On a 3 -> 2 lane drop a keeper held its centre 1 m towards the ending lane; where the lane
     dropped the road narrowed under it and it was off-track (the losses of the OSM-like nets)."""
@@ -1044,6 +1054,7 @@ def test_an_agent_reaching_over_a_lane_that_drops_is_centred_by_sumo_and_stays_o
         assert handed and not off_track
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("lefthand", [False, True])
 def test_the_fast_side_is_the_higher_lane_index_in_right_and_left_hand_nets(tmp_path, lefthand):
     """A car in lane 2 beside an agent in lane 1 is on the agent's fast side in both kinds of net."""
@@ -1077,6 +1088,7 @@ def test_the_end_of_a_route_is_not_a_lane_that_ends():
     assert np.isinf(out[1]).all()  # every lane stops where the route stops: nothing ends
 
 
+@pytest.mark.sumo
 def test_leaving_a_junctions_internal_lane_sideways_is_not_off_the_road(tmp_path):
     """Internal edges hold some connections' lanes, not the carriageway (the motorway's lane drop
     counted agents off-track there)."""
@@ -1093,6 +1105,7 @@ def test_leaving_a_junctions_internal_lane_sideways_is_not_off_the_road(tmp_path
     assert inside and not any(inside)
 
 
+@pytest.mark.sumo
 def test_an_agent_in_the_fast_lane_is_handed_over_on_a_long_edge_well_before_its_exit_ramp(tmp_path):
     """carriageway2's main edge is 1.2 km long, longer than the look-ahead for a one-lane ramp: an
     agent leaving from the fast lane was handed over only on the 250 m deceleration section, where
@@ -1123,6 +1136,7 @@ def test_an_agent_in_the_fast_lane_is_handed_over_on_a_long_edge_well_before_its
         assert lowest_speed > 15.0
 
 
+@pytest.mark.sumo
 def test_sumo_gives_an_agent_back_only_once_it_is_inside_its_lane(tmp_path):
     """SUMO carried a keeper it had taken over the line into a dropping lane and, where the lane
     dropped, left it on the carriageway's edge; given back there, its next step was off the road."""
@@ -1144,6 +1158,7 @@ def test_sumo_gives_an_agent_back_only_once_it_is_inside_its_lane(tmp_path):
         assert given_back_at is not None and abs(given_back_at) <= room - 0.2
 
 
+@pytest.mark.sumo
 def test_sumo_changes_lanes_for_an_agent_whose_last_sideways_move_was_too_small_to_complete(tmp_path):
     """SUMO keeps a `changeSublane` of less than ~0.5 mm pending for good, and a pending request
     overrules every lane change SUMO's driver wants: handed over after such a move, an agent stood
@@ -1161,6 +1176,7 @@ def test_sumo_changes_lanes_for_an_agent_whose_last_sideways_move_was_too_small_
         assert "X_0" in lanes
 
 
+@pytest.mark.sumo
 def test_an_agent_lets_in_a_car_of_sumo_that_must_cross_its_lane_for_an_exit(tmp_path):
     """SUMO's drivers make room for a car whose route needs their lane (its lane-change model asks
     them); nobody asks an agent, so the driver reads the wish from SUMO and drops back as it does for
@@ -1187,6 +1203,7 @@ def test_an_agent_lets_in_a_car_of_sumo_that_must_cross_its_lane_for_an_exit(tmp
         assert {"A_1", "A_0"} <= lanes and "agent" in sim.vehicle_ids()  # through its lane to the exit
 
 
+@pytest.mark.sumo
 def test_a_repeated_sideways_move_of_0_left_out_moves_the_car_as_sending_it(tmp_path):
     """`Fleet.act` leaves out a 0 to an agent whose last move was 0 (`moves_to_send`): after a 0,
     SUMO holds 0 whatever it was carrying on (a move too small to complete, one longer than a
@@ -1209,6 +1226,7 @@ def test_a_repeated_sideways_move_of_0_left_out_moves_the_car_as_sending_it(tmp_
     assert len({lateral for _, lateral in runs[0]}) > 3  # the moves did move the car
 
 
+@pytest.mark.sumo
 def test_an_agent_given_back_has_its_own_vtype_and_exact_sideways_moves_again(tmp_path):
     """While SUMO drives an agent, SUMO's copy of its type (`behave_keeper@agent`) holds the
     handover's lateral limits and FCD shows it; kept after the hand-back, it read as SUMO driving
@@ -1232,6 +1250,7 @@ def test_an_agent_given_back_has_its_own_vtype_and_exact_sideways_moves_again(tm
         assert float(sim.read_agents(["agent"]).lateral_pos[0]) - before == pytest.approx(0.3, abs=1e-6)
 
 
+@pytest.mark.sumo
 def test_every_step_takes_the_commanded_speed_and_sideways_move_between_sumos_action_points_too(tmp_path):
     """SUMO works out its own plans for an agent once a second (`AGENT_ACTION_STEP`, five steps),
     but the policy's speed and sideways move must take effect at every step: the speed exactly,
@@ -1250,6 +1269,7 @@ def test_every_step_takes_the_commanded_speed_and_sideways_move_between_sumos_ac
             assert float(after.lateral_pos[0] - before.lateral_pos[0]) == pytest.approx(move, abs=1e-6)
 
 
+@pytest.mark.sumo
 def test_sumo_is_told_the_traffic_drivers_top_sideways_speed_and_carries_its_fastest_move_out_whole(tmp_path):
     """SUMO's cars judge a lane-changing agent's reach by its vType's maxSpeedLat: the traffic
     driver's 1.2 m/s, not the vTypes' 5 (the paper driver's), after a restart too; and the driver's
@@ -1275,6 +1295,7 @@ def test_sumo_is_told_the_traffic_drivers_top_sideways_speed_and_carries_its_fas
         assert sim._sumo.vehicletype.getMaxSpeedLat(AGENT_VTYPES[0]) == PaperDriver.max_lateral_speed == 5.0
 
 
+@pytest.mark.sumo
 def test_sumo_reacts_at_every_step_for_an_agent_it_drives_and_once_a_second_once_given_back(tmp_path):
     """Handed to SUMO, an agent reacts as SUMO's own cars do, at every step; given back, its
     vType's action step is its own again."""
@@ -1286,6 +1307,7 @@ def test_sumo_reacts_at_every_step_for_an_agent_it_drives_and_once_a_second_once
         assert sim._sumo.vehicle.getActionStepLength("agent") == AGENT_ACTION_STEP
 
 
+@pytest.mark.sumo
 def test_a_car_sumo_was_moving_sideways_takes_the_policys_first_move_exactly_once_it_is_an_agent(tmp_path):
     """A scenario's car becomes an agent in the middle of SUMO's own sideways move: the policy's
     first move must be all the car does, not SUMO's move carried on to its next action point."""
