@@ -796,7 +796,9 @@ def actuate_lanes(
         )
         traffic = replace(traffic, lead_accel=leaders.T)
     rules = lateral.rules
-    leave, leaving, lanes_go_on = None, None, True
+    leave: np.ndarray | None = None
+    leaving: np.ndarray | None = None
+    lanes_go_on: np.ndarray | bool = True
     if lane_leads_on is not None and rules.leave_ending_lane:
         soon = ends_soon(speed, lateral)
         leave_within = np.maximum(lateral.leave_ending_m, lateral.leave_ending_s * speed)
