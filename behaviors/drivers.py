@@ -44,7 +44,15 @@ from behaviors.lanes import (
     search_radius,
 )
 from behaviors.lanes import surroundings as lane_surroundings
-from behaviors.rewards import TERM_NAMES, TRAFFIC_TERM_NAMES
+from behaviors.rewards import (
+    TERM_NAMES,
+    TRAFFIC_TERM_NAMES,
+    TrafficStep,
+    TrafficTerms,
+    TrafficWeights,
+    styled_rewards,
+    traffic_rewards,
+)
 from behaviors.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT, AgentFrame, neighbours, observe
 from behaviors.sim import SumoSim
 from behaviors.styles import (
@@ -403,6 +411,11 @@ class TrafficDriver:
         patience = np.where(overtaker, ruled.patience, ruled.keeper_patience)
         return LaneHabits(overtaker, margin, patience)
 
+    @staticmethod
+    def rewards(step: TrafficStep, weights: TrafficWeights) -> TrafficTerms:
+        """The terms of its reward (rewards.traffic_rewards): the behaviour id's."""
+        return traffic_rewards(step, weights)
+
     def may_begin(self, fleet: Fleet) -> np.ndarray:
         """[N] bool: where an agent may begin a lane change: not inside a junction (its lanes are a
         connection's, not the carriageway's), nor near the start of an edge nothing leads onto."""
@@ -508,6 +521,11 @@ class StyledDriver(TrafficDriver):
         own = fleet.rows.own
         style = np.stack([own.time_headway / HEADWAY_RANGE[1], own.eagerness], axis=1).astype(np.float32)
         return replace(observed, obs=np.concatenate([observed.obs[:, :-1], style], axis=1))
+
+    @staticmethod
+    def rewards(step: TrafficStep, weights: TrafficWeights) -> TrafficTerms:
+        """The terms of its reward judged against each agent's style (rewards.styled_rewards)."""
+        return styled_rewards(step, weights)
 
     def teacher_habits(self, eagerness: np.ndarray) -> LaneHabits:
         """The rules' habits of a style: every driver keeps right; the eager pass a leader a little

@@ -181,7 +181,8 @@ class TrafficWeights:
 
 @dataclass(frozen=True)
 class TrafficStep:
-    """What the traffic reward needs of one step, per agent (m, m/s, s)."""
+    """What the traffic reward needs of one step, per agent (m, m/s, s); the style's headway and
+    eagerness only the styled driver's reward reads (None for the others)."""
 
     speed: np.ndarray
     desired_speed: np.ndarray
@@ -195,6 +196,8 @@ class TrafficStep:
     collided: np.ndarray
     off_track: np.ndarray
     no_progress: np.ndarray
+    time_headway: np.ndarray | None = None  # s: the headway the driver's style asks for
+    eagerness: np.ndarray | None = None  # in [0, 1]: how readily the style passes
 
 
 @dataclass(frozen=True)
@@ -249,6 +252,54 @@ def traffic_rewards(step: TrafficStep, w: TrafficWeights) -> TrafficTerms:
         "centre": -w.centre * np.minimum(step.lane_deviation, 1.0),
         "lane_change": -change_cost * step.lane_changed,
         "keep_slow_side": -w.keep_slow_side * (overtaker & slow_lane_free),
+        "pass_slow_side": -w.pass_slow_side * undertaking,
+        "comfort": -w.comfort * (step.lateral_acceleration / 1.5) ** 2
+        - w.comfort_longitudinal * (step.acceleration / 3.0) ** 2,
+        "collision": -w.crash * step.collided,
+        "off_track": -w.crash * step.off_track,
+        "no_progress": -w.no_progress * step.no_progress,
+    }
+    return TrafficTerms({k: np.asarray(x, float) for k, x in values.items()})
+
+
+SAFETY_HEADWAY = 0.5
+"""s: following closer than this costs whatever the style (the styled driver's envelope bound)."""
+
+
+def styled_rewards(step: TrafficStep, w: TrafficWeights) -> TrafficTerms:
+    """The traffic reward's terms judged against each driver's style instead of its behaviour id:
+    the speed against the desired speed, a slower leader forgiven as much as the driver is patient
+    (1 - eagerness: an eager driver is not content behind it, which is its reason to pass); the
+    headway against the style's (a fraction off costs that fraction), closer than SAFETY_HEADWAY
+    costing more; a lane change costing less the eagerer the driver; and keeping right asked of
+    everyone, as the law asks it."""
+    assert step.time_headway is not None and step.eagerness is not None
+    v, wanted, eager = step.speed, step.time_headway, step.eagerness
+    lead_gap, lead_speed = step.gap[:, 0], step.other_speed[:, 0]
+    has_lead = np.isfinite(lead_gap) & ~np.isnan(lead_speed)
+    following = has_lead & (lead_gap < w.free_gap + 2.0 * wanted * v) & (v > 5.0)
+    held_back = np.maximum(step.desired_speed - np.nan_to_num(lead_speed), 0.0)
+    target = np.where(following, step.desired_speed - (1.0 - eager) * held_back, step.desired_speed)
+    speed = 1.0 - np.abs(v - target) / np.maximum(target, 1.0)
+    headway = np.where(following, lead_gap / np.maximum(v, 0.1), np.inf)
+    off_style = np.where(following, np.minimum(np.abs(headway - wanted) / wanted, 1.0), 0.0)
+    too_close = np.clip(1.0 - headway / SAFETY_HEADWAY, 0.0, 1.0)
+    closing_speed = np.where(has_lead, v - np.nan_to_num(lead_speed), 0.0)
+    ttc = np.where(closing_speed > 0.1, lead_gap / np.maximum(closing_speed, 0.1), np.inf)
+    slow_lane_free = (step.gap[:, 4] > np.maximum(w.free_slow_lane, 3.0 * v)) & (
+        step.gap[:, 5] > np.maximum(10.0, v)
+    )
+    fast_gap, fast_speed = step.gap[:, 2], step.other_speed[:, 2]
+    passing = (fast_gap < w.passing_zone) & ~np.isnan(fast_speed)
+    undertaking = np.where(passing, np.clip((v - np.nan_to_num(fast_speed)) / 5.0, 0.0, 1.0), 0.0)
+    change_cost = w.lane_change_overtaker + (w.lane_change_keeper - w.lane_change_overtaker) * (1.0 - eager)
+    values = {
+        "speed": np.clip(speed, -1.0, 1.0),
+        "headway": -0.5 * w.headway * off_style - w.headway * too_close,
+        "closing": -w.closing * np.clip((w.safe_ttc - ttc) / w.safe_ttc, 0.0, 1.0),
+        "centre": -w.centre * np.minimum(step.lane_deviation, 1.0),
+        "lane_change": -change_cost * step.lane_changed,
+        "keep_slow_side": -w.keep_slow_side * slow_lane_free,
         "pass_slow_side": -w.pass_slow_side * undertaking,
         "comfort": -w.comfort * (step.lateral_acceleration / 1.5) ** 2
         - w.comfort_longitudinal * (step.acceleration / 3.0) ** 2,

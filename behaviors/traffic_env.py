@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from behaviors.drivers import TrafficDriver
 from behaviors.env_core import (
     BACKGROUND_TYPE,
     KEEPER_TYPE,
@@ -31,7 +32,7 @@ from behaviors.env_core import (
 )
 from behaviors.errors import BehaveError
 from behaviors.geometry import RoadGeometry, load_geometry
-from behaviors.rewards import NO_PROGRESS_SECONDS, TrafficStep, TrafficWeights, traffic_rewards, weigh
+from behaviors.rewards import NO_PROGRESS_SECONDS, TrafficStep, TrafficWeights, weigh
 from behaviors.routes import RouteGraph, RoutePool, lane_km, misplaced, route_graph
 from behaviors.scenario_config import ScenarioConfig, read_sumocfg, run_as_sumocfg
 from behaviors.sim import SimOptions, SumoSim
@@ -388,6 +389,7 @@ class TrafficEnv(BehaveEnv):
         n = len(slots)
         assert fleet.rows.frame is not None
         desired = fleet.own.desired_fraction * fleet.rows.frame.speed_limit
+        style_headway, style_eagerness = fleet.own.time_headway.copy(), fleet.own.eagerness.copy()
         before_speed, before_lateral = fleet.rows.speed.copy(), fleet.own.lateral_speed.copy()
         self._stop_and_go(sim)
         actuation = fleet.act(sim, actions)
@@ -422,8 +424,12 @@ class TrafficEnv(BehaveEnv):
             collided=collided,
             off_track=off_track,
             no_progress=no_progress,
+            time_headway=style_headway,
+            eagerness=style_eagerness,
         )
-        terms = weigh(traffic_rewards(step, self.weights), self.config.reward_weights)
+        driver = fleet.driver
+        assert isinstance(driver, TrafficDriver)  # the drivers that train among traffic
+        terms = weigh(driver.rewards(step, self.weights), self.config.reward_weights)
         terminated = collided | off_track | no_progress
         truncated = ~terminated & (~present | (self.steps >= self.config.max_steps))
         self._leave(slots, present, terminated | truncated, contact)

@@ -11,6 +11,7 @@ import pytest
 from behaviors.actuation import CarModel, LaneDriving, actuate_lanes
 from behaviors.drivers import STYLED_LANES, STYLED_OBS_SIZE, StyledDriver
 from behaviors.errors import BehaveError
+from behaviors.rewards import TrafficStep, TrafficWeights, styled_rewards
 from behaviors.styles import (
     HEADWAY_RANGE,
     KEEPER,
@@ -135,3 +136,33 @@ def test_the_styled_observation_ends_with_the_style():
     habits = driver.teacher_habits(np.array([0.0, 1.0]))
     assert habits.overtakes.all()  # every driver keeps right
     assert habits.pass_margin[0] > habits.pass_margin[1] and habits.patience[0] > habits.patience[1]
+
+
+def styled_step(**over) -> TrafficStep:
+    """Two drivers at 25 m/s wanting 30, 30 m behind a leader at 25 m/s (a 1.2 s headway)."""
+    gap, other = np.full((2, 6), np.inf), np.full((2, 6), np.nan)
+    gap[:, 0], other[:, 0] = 30.0, 25.0
+    base = dict(
+        speed=np.full(2, 25.0), desired_speed=np.full(2, 30.0), acceleration=np.zeros(2),
+        lateral_acceleration=np.zeros(2), lane_deviation=np.zeros(2), lane_changed=np.zeros(2, bool),
+        behaviour_id=np.zeros(2), gap=gap, other_speed=other, collided=np.zeros(2, bool),
+        off_track=np.zeros(2, bool), no_progress=np.zeros(2, bool), time_headway=np.full(2, 1.2),
+        eagerness=np.full(2, 0.5),
+    )  # fmt: skip
+    base.update(over)
+    return TrafficStep(**base)
+
+
+def test_the_styled_reward_follows_each_drivers_style():
+    weights = TrafficWeights()
+    eager_or_not = styled_rewards(styled_step(eagerness=np.array([1.0, 0.0])), weights).values
+    assert eager_or_not["speed"][0] < eager_or_not["speed"][1]  # the eager one is not content behind it
+    headways = styled_rewards(styled_step(time_headway=np.array([1.2, 2.4])), weights).values
+    assert headways["headway"][0] == 0.0 > headways["headway"][1]  # at its own headway: no cost
+    changed = styled_step(lane_changed=np.ones(2, bool), eagerness=np.array([1.0, 0.0]))
+    cost = styled_rewards(changed, weights).values["lane_change"]
+    assert cost[1] < cost[0] < 0.0  # a change costs the reluctant driver more
+    close = gap_step = styled_step(time_headway=np.array([0.6, 0.6]))
+    gap_step.gap[:, 0] = [7.5, 15.0]  # 0.3 s and 0.6 s
+    near = styled_rewards(close, weights).values["headway"]
+    assert near[0] < near[1] == 0.0  # closer than the safety headway costs even when the style asks
