@@ -31,6 +31,7 @@ import contextlib
 import csv
 import functools
 import io
+import math
 import shutil
 import tempfile
 import time
@@ -53,16 +54,27 @@ from behaviors.agents_table import (
     columns,
 )
 from behaviors.control import Fleet, RoadFrame
+from behaviors.ddpg.checkpoint import load_checkpoint
 from behaviors.drivers import DRIVERS, make_driver
 from behaviors.env import KEEPER_TYPE, OVERTAKER_TYPE
+from behaviors.env_core import EnvConfig
 from behaviors.errors import BehaveError
 from behaviors.export import FCD_SUFFIXES, fcd_options, require_projection, seal_fcd
 from behaviors.files import atomic_path, check_output_path, temp_path
 from behaviors.geometry import CAR_CLASS, RoadGeometry, load_geometry
 from behaviors.interrupt import sigint_between_steps
 from behaviors.policy import PRETRAINED, RULES, Policy, load_policy, rules_policy
+from behaviors.policy import resolve as resolve_policy
 from behaviors.routes import RoutePool, misplaced, route_graph
-from behaviors.scenario_config import ScenarioConfig, read_sumocfg, run_as_sumocfg, share_draw
+from behaviors.scenario_config import (
+    SUMO_STEP_LENGTH,
+    ScenarioConfig,
+    lateral_for,
+    plan_run,
+    read_sumocfg,
+    run_as_sumocfg,
+    share_draw,
+)
 from behaviors.sim import SimOptions, SumoSim, VehicleState, check_display
 from behaviors.timing import PhaseTimer
 from behaviors.traffic_env import VTYPES
@@ -95,6 +107,13 @@ class PopulateConfig:
     overtaker_fraction: float = 0.5  # of those agents, the fraction that are overtakers
     gui: bool = False  # run in sumo-gui (needs a display)
     driver: str | None = None  # None: the policy's own; "rules": the traffic driver's rules, no policy
+    lateral_resolution: float | None = None  # with a sumocfg: SUMO's sublane width (m); None: lateral_for
+    outputs: Path | None = None  # with a sumocfg: the folder its own outputs (detectors, summary, ...) go to
+
+    @property
+    def has_agents(self) -> bool:
+        """Whether a policy drives in this run (agents of the share or of behave's own)."""
+        return self.share > 0 or self.keepers + self.overtakers > 0
 
     @property
     def share_kinds(self) -> tuple[bool, bool]:
@@ -122,16 +141,25 @@ class PopulateConfig:
                 raise BehaveError(f"{name.replace('_', ' ')} must be in [0, 1], got {getattr(self, name)}")
         if self.share > 0 and self.sumocfg is None:
             raise BehaveError("--share converts a scenario's own cars: it needs --sumocfg")
+        if self.outputs is not None and self.sumocfg is None:
+            raise BehaveError("--outputs takes a scenario's own outputs: it needs --sumocfg")
+        if self.lateral_resolution is not None and self.sumocfg is None:
+            raise BehaveError("--lateral-resolution sets a scenario's sublanes: it needs --sumocfg")
         if self.driver is not None and self.driver not in (*DRIVERS, RULES):
             raise BehaveError(f"unknown driver '{self.driver}' (choose from {', '.join((*DRIVERS, RULES))})")
         if self.gui:
             check_display()
 
 
-def config_from(sumocfg: Path | None, **given: Any) -> PopulateConfig:
-    """The config for the options a user gave (None = not given). With a sumocfg, its net, its step
-    length and its duration (end - begin) hold where not given, and behave adds no cars of its own
-    unless asked (--keepers, --overtakers, --background)."""
+def config_from(
+    sumocfg: Path | None, notes: list[str] | None = None, agent_settings: bool = False, **given: Any
+) -> PopulateConfig:
+    """The config for the options a user gave (None = not given). Agents drive at the step their policy
+    was trained at (`trained_step`). With a sumocfg, its net, and behave adds no cars of its own unless
+    asked (--keepers, --overtakers, --background); its step, duration and lateral resolution as
+    scenario_config.plan_run decides (as SUMO runs it, except what agents need), each difference from
+    `sumo -c` a line appended to `notes`. `agent_settings`: a run without agents runs as one with
+    agents would (a sweep's share 0 beside its other shares)."""
     values = {name: value for name, value in given.items() if value is not None}
     if values.get("driver") == RULES and "policy" in values:
         raise BehaveError("--driver rules drives with no network: drop --policy")
@@ -142,10 +170,71 @@ def config_from(sumocfg: Path | None, **given: Any) -> PopulateConfig:
             )
         scenario = read_sumocfg(sumocfg)
         values["net"] = scenario.net
-        defaults = {"step_length": scenario.step_length, "duration": scenario.duration}
-        values.update({k: v for k, v in defaults.items() if k not in values and v is not None})
         values.update({k: 0 for k in ("overtakers", "keepers", "background") if k not in values})
+    counts = [values.get(kind, getattr(PopulateConfig, kind)) for kind in ("keepers", "overtakers")]
+    agents = values.get("share", 0.0) > 0 or sum(counts) > 0
+    step = trained_step(values) if agents or agent_settings else TRAINED_STEP
+    if agents and "step_length" in values:
+        check_step(policy_name(values), values["step_length"], step)
+    if sumocfg is not None:
+        plan = plan_run(
+            scenario, agents=agents or agent_settings, policy_step=step,
+            default_duration=PopulateConfig.duration, seed=values.get("seed", PopulateConfig.seed),
+            step_length=values.get("step_length"), duration=values.get("duration"),
+            lateral_resolution=values.get("lateral_resolution"),
+        )  # fmt: skip
+        values.update(step_length=plan.step_length, duration=plan.duration)
+        values.update(lateral_resolution=plan.lateral_resolution)
+        if notes is not None:
+            notes.extend(plan.notes)
+        own = lateral_for(scenario, False), scenario.step_length or SUMO_STEP_LENGTH
+        ran = plan.lateral_resolution, plan.step_length
+        if notes is not None and agent_settings and not agents and own != ran:
+            notes.append(
+                f"{sumocfg.name}'s runs without agents run as those with agents do (at {ran[1]:g} s "
+                f"steps, --lateral-resolution {ran[0]:g}), so that they compare"
+            )
+    elif agents:
+        values.setdefault("step_length", step)
     return PopulateConfig(sumocfg=sumocfg, **values)
+
+
+TRAINED_STEP = EnvConfig.step_length
+"""s: the step of a policy whose checkpoint records none (training's default), and the rules driver's."""
+
+
+def trained_step(given: dict[str, Any]) -> float:
+    """The step (s) the policy the options name (`policy`, `driver`) was trained at."""
+    if given.get("driver") == RULES:
+        return TRAINED_STEP
+    return checkpoint_step(resolve_policy(given.get("policy") or DEFAULT_POLICY)[0])
+
+
+def policy_name(given: dict[str, Any]) -> str:
+    """The policy the options name, as messages name it."""
+    return RULES if given.get("driver") == RULES else str(given.get("policy") or "traffic")
+
+
+def check_step(policy: str | Path, step: float, trained: float) -> None:
+    """BehaveError if the policy, trained at `trained` s steps, would drive at `step`: a policy drives
+    at the step it was trained at or not at all."""
+    if not math.isclose(step, trained):
+        raise BehaveError(
+            f"{policy} was trained at {trained:g} s steps and drives at no other: --step-length {step:g} "
+            f"would run it at {step:g} s (leave --step-length out)"
+        )
+
+
+def checkpoint_step(path: Path) -> float:
+    """The step (s) a checkpoint's policy was trained at, as its metadata records it."""
+    if not Path(path).is_file():  # a policy made in Python, not loaded from a file
+        return TRAINED_STEP
+    return _recorded_step(Path(path).resolve(), Path(path).stat().st_mtime_ns)
+
+
+@functools.cache
+def _recorded_step(path: Path, mtime_ns: int) -> float:
+    return float(load_checkpoint(path).meta.get("step_length") or TRAINED_STEP)
 
 
 @dataclass
@@ -487,11 +576,14 @@ class Population:
         options = SimOptions(net=c.net, additional=(VTYPES,), routes=routes, step_length=c.step_length,
                              seed=c.seed, extra=fcd, gui=c.gui,
                              agent_max_speed_lat=self.fleet.driver.max_lateral_speed)  # fmt: skip
-        if scenario is not None:
-            options = run_as_sumocfg(options, scenario)
-        else:  # a sumocfg keeps its own begin time; a net starts at 0
-            options = replace(options, extra=("--begin", "0", *fcd))
-        self.sim = SumoSim(options)
+        with tempfile.TemporaryDirectory(prefix="behave-scenario-") as staging:  # read by SUMO as it starts
+            if scenario is not None:
+                lateral = c.lateral_resolution
+                lateral = lateral_for(scenario, c.has_agents) if lateral is None else lateral
+                options = run_as_sumocfg(options, scenario, lateral, c.outputs, Path(staging))
+            else:  # a sumocfg keeps its own begin time; a net starts at 0
+                options = replace(options, extra=("--begin", "0", *fcd))
+            self.sim = SumoSim(options)
         self.routes = RoutePool(self.graph, c.duration * 50.0, self.sim.add_route)
         self.insert("overtaker", c.overtakers)
         self.insert("keeper", c.keepers)
@@ -588,7 +680,9 @@ class Population:
         left_background = {v for v in arrived if v in self.background_ids}.union(wrecked_background)
         self.background_ids -= left_background
         if self.scenario is not None:  # before _admit: behave's own cars are still pending
-            self._convert([v for v in sim.departed() if v not in self.pending], now)
+            departed = [v for v in sim.departed() if v not in self.pending]
+            self.summary.vehicles += len(departed)  # the scenario's own; behave's count as they join
+            self._convert(departed, now)
         self._admit(self.vehicles.row, now)
         if c.keep_count:
             for kind in ("keeper", "overtaker"):
@@ -764,6 +858,9 @@ def check_fits(config: PopulateConfig, policy: Policy) -> None:
     its own cars on."""
     keepers, overtakers = config.share_kinds
     keepers, overtakers = keepers or config.keepers > 0, overtakers or config.overtakers > 0
+    if keepers or overtakers:
+        trained = TRAINED_STEP if policy.label == RULES else checkpoint_step(policy.path)
+        check_step(policy.label, config.step_length, trained)
     if not make_driver(policy.driver).among_traffic and config.share > 0:
         raise BehaveError(
             f"{policy.path} drives the {policy.driver} driver, which cannot leave multi-lane roads: "

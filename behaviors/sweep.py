@@ -6,6 +6,10 @@ Layout of a sweep folder (`--out`):
   atomically when the run ends. A sweep started again skips every point whose row says `ok`, so a
   killed sweep resumes where it stopped; a failed run's row holds its error and is run again.
 * `fcd/<point id>.csv` and `.agents.csv`: the run's FCD, only with `keep_fcd`.
+* `outputs/<point id>/`: every output the run's scenario names (its detectors', summary, tripinfo, ...),
+  at their places relative to the sumocfg's folder; SUMO writes them into the run's own temporary
+  folder (`scenario_config.redirect_outputs`), never beside the scenario, where parallel runs would
+  write the same files.
 * `sweep.csv`, `sweep.parquet`, `sweep.png`: every row in `runs/`, gathered, and the main figures
   against the share with the spread over seeds.
 
@@ -23,6 +27,7 @@ import itertools
 import json
 import math
 import os
+import shutil
 import signal
 import socket
 import tempfile
@@ -42,6 +47,7 @@ if TYPE_CHECKING:
 
 RUNS_DIR = "runs"
 FCD_DIR = "fcd"
+OUTPUTS_DIR = "outputs"
 FCD_SUFFIX = ".csv"
 """Each run's FCD: SUMO writes csv as it goes (a parquet trace it keeps in memory until the end)."""
 TABLE = "sweep"
@@ -86,11 +92,18 @@ class Point:
     duration: float | None = None  # None: populate's default (180 s, or the sumocfg's end - begin)
     step_length: float | None = None
     shield: bool = True
+    agent_settings: bool = (
+        False  # without agents, run as with agents (populate.config_from): a share 0 baseline
+    )
 
     @property
     def id(self) -> str:
-        """A readable name that is unique to every setting (a hash of them all)."""
-        digest = hashlib.sha256(json.dumps(asdict(self), sort_keys=True).encode()).hexdigest()[:10]
+        """A readable name that is unique to every setting (a hash of them all; `agent_settings` only
+        where set, so the points of sweeps before it keep their ids)."""
+        settings = asdict(self)
+        if not self.agent_settings:
+            del settings["agent_settings"]
+        digest = hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:10]
         what = f"share{self.share:g}" if self.kind == "sumocfg" else f"o{self.overtakers}k{self.keepers}"
         name = Path(self.scenario).name.split(".")[0]
         return f"{name}-{Path(self.policy).stem}-{what}-seed{self.seed}-{digest}"
@@ -108,19 +121,20 @@ class Point:
             "shield": self.shield,
         }  # fmt: skip
 
-    def config(self, fcd: Path) -> Any:
-        """populate's PopulateConfig of this point, writing its FCD to `fcd`."""
+    def config(self, fcd: Path, notes: list[str] | None = None, outputs: Path | None = None) -> Any:
+        """populate's PopulateConfig of this point, writing its FCD to `fcd` (and a sumocfg's own outputs
+        into `outputs`; None: where the scenario names them); `notes` as config_from."""
         from behaviors.populate import config_from
 
-        given = {
+        given: dict[str, Any] = {
             "overtakers": self.overtakers, "keepers": self.keepers, "background": self.background,
             "policy": Path(self.policy), "duration": self.duration, "step_length": self.step_length,
             "seed": self.seed, "fcd": fcd, "shield": self.shield,
         }  # fmt: skip
         if self.kind == "sumocfg":
-            given |= {"share": self.share, "overtaker_fraction": self.overtaker_fraction}
-            return config_from(Path(self.scenario), **given)
-        return config_from(None, net=Path(self.scenario), **given)
+            given |= {"share": self.share, "overtaker_fraction": self.overtaker_fraction, "outputs": outputs}
+            return config_from(Path(self.scenario), notes, self.agent_settings, **given)
+        return config_from(None, notes, net=Path(self.scenario), **given)
 
 
 @dataclass(frozen=True)
@@ -158,10 +172,13 @@ def expand(grid: Grid) -> list[Point]:
         keepers = grid.keepers if grid.keepers is not None else (default["keepers"],)
         background = grid.background if grid.background is not None else default["background"]
         shares = _unique(grid.shares) if kind == "sumocfg" else [0.0]
+        # a sumocfg's runs without agents beside runs with them run as those do (step, sublanes): comparable
+        agents = kind == "sumocfg" and (any(shares) or any(overtakers) or any(keepers))
         for o, k, share, seed in itertools.product(_unique(overtakers), _unique(keepers), shares,
                                                    _unique(grid.seeds)):  # fmt: skip
+            baseline = agents and share == 0 and o + k == 0
             points.append(Point(scenario, kind, policy, float(share), int(seed), int(o), int(k),
-                                int(background), **common))  # fmt: skip
+                                int(background), agent_settings=baseline, **common))  # fmt: skip
     return points
 
 
@@ -169,9 +186,10 @@ def _unique(values: Iterable[Any]) -> list[Any]:
     return list(dict.fromkeys(values))
 
 
-def check_grid(grid: Grid) -> list[Point]:
+def check_grid(grid: Grid, notes: list[str] | None = None) -> list[Point]:
     """The grid's points, or a BehaveError (one line) for anything that would make a run fail at once:
-    a missing scenario, a share out of range, a policy that cannot drive what is asked."""
+    a missing scenario, a share out of range, a policy that cannot drive what is asked, a duration past
+    a sumocfg's end. `notes` gets each line populate would say of how a scenario runs, once."""
     if not grid.sumocfgs and not grid.nets:
         raise BehaveError("nothing to sweep: give --sumocfg or --net")
     if grid.nets and any(share != 0 for share in grid.shares) and not grid.sumocfgs:
@@ -184,10 +202,13 @@ def check_grid(grid: Grid) -> list[Point]:
     from behaviors.populate import check_fits
 
     policies = {spec: load_policy(Path(spec)) for spec in _unique(grid.policies)}
+    said: list[str] = []
     for point in points:  # every share and count: what the policy must drive, what the config holds
-        config = point.config(Path(tempfile.gettempdir()) / f"check{FCD_SUFFIX}")
+        config = point.config(Path(tempfile.gettempdir()) / f"check{FCD_SUFFIX}", said)
         config.validate()
         check_fits(config, policies[point.policy])
+    if notes is not None:
+        notes.extend(_unique(said))
     return points
 
 
@@ -226,24 +247,34 @@ class RunResult:
     row: dict[str, Any]
     fcd: bytes | None = None
     agents: bytes | None = None
+    outputs: tuple[tuple[str, bytes], ...] = ()  # the scenario's own outputs: (path in the run folder, bytes)
 
 
 def run_point(point: Point, *, keep_fcd: bool = False, workdir: Path | None = None) -> RunResult:
     """One populate run of `point` in a temporary folder and its row; any failure becomes a failed
     row. The row is the same wherever and beside whatever it runs."""
     with tempfile.TemporaryDirectory(prefix="behave-sweep-", dir=workdir) as folder:
-        fcd = Path(folder) / f"fcd{FCD_SUFFIX}"
+        fcd, outputs = Path(folder) / f"fcd{FCD_SUFFIX}", Path(folder) / OUTPUTS_DIR
         start = time.perf_counter()
         try:
             from behaviors.populate import populate
 
-            summary = populate(point.config(fcd))
+            config = point.config(fcd, outputs=outputs)
+            summary = populate(config)
             row = ok_row(point, summary.as_dict(), fcd_figures(fcd, Path(summary_net(point))))
+            row["step_length_s"] = (
+                config.step_length
+            )  # the step it ran at (given, the policy's, the sumocfg's)
         except Exception as exc:  # a run's failure is its row's, not the sweep's
             return RunResult(failed_row(point, error_line(exc), time.perf_counter() - start))
+        written = tuple(
+            (path.relative_to(outputs).as_posix(), path.read_bytes())
+            for path in sorted(outputs.rglob("*"))
+            if path.is_file()
+        )
         if not keep_fcd:
-            return RunResult(row)
-        return RunResult(row, fcd.read_bytes(), agents_path(fcd).read_bytes())
+            return RunResult(row, outputs=written)
+        return RunResult(row, fcd.read_bytes(), agents_path(fcd).read_bytes(), written)
 
 
 def summary_net(point: Point) -> str:
@@ -501,7 +532,16 @@ def short(setting: str, value: Any) -> str:
 
 
 def save_files(out: Path, result: RunResult) -> None:
-    """A kept run's FCD and agents table into `fcd/`."""
+    """A run's scenario outputs into `outputs/<id>/` (the folder cleared first: a run again replaces
+    them) and a kept run's FCD and agents table into `fcd/`."""
+    run_folder = Path(out) / OUTPUTS_DIR / result.row["id"]
+    if run_folder.is_dir():
+        shutil.rmtree(run_folder)
+    for name, content in result.outputs:
+        target = run_folder / name
+        ensure_writable_dir(target.parent)
+        with atomic_path(target) as tmp:
+            tmp.write_bytes(content)
     if result.fcd is None:
         return
     folder = Path(out) / FCD_DIR

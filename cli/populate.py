@@ -15,6 +15,7 @@ from rich.table import Table
 import behaviors
 from behaviors.cli.checks import NET, NON_NEGATIVE, POSITIVE, SEED
 from behaviors.cli.progress import QUIET, VERBOSE, make_progress, verbosity
+from behaviors.errors import BehaveError
 from behaviors.files import check_output_path
 from sumo_scenarios import get_scenario
 
@@ -46,11 +47,12 @@ def populate_command(
         ),
     ] = None,
     share: Annotated[
-        float,
+        float | None,
         typer.Option(
-            help="with --sumocfg: this fraction of the scenario's passenger cars become agents (0-1)"
+            help="with --sumocfg (needed there): this fraction of the scenario's passenger cars become "
+            "agents (0-1; 0: SUMO's cars alone, the scenario as `sumo -c` runs it)"
         ),
-    ] = DEFAULTS.share,
+    ] = None,
     overtaker_fraction: Annotated[
         float,
         typer.Option(
@@ -103,7 +105,24 @@ def populate_command(
     step_length: Annotated[
         float | None,
         typer.Option(
-            help=f"seconds per step [default: {DEFAULTS.step_length:g}, or the sumocfg's]", callback=POSITIVE
+            help=f"seconds per step [default: the policy's ({DEFAULTS.step_length:g} s); without agents the "
+            "sumocfg's, or SUMO's 1 s]",
+            callback=POSITIVE,
+        ),
+    ] = None,
+    lateral_resolution: Annotated[
+        float | None,
+        typer.Option(
+            help="with --sumocfg: SUMO's sublane width in metres [default: the sumocfg's; where it sets none "
+            "0.8 with agents, no sublanes without]",
+            callback=POSITIVE,
+        ),
+    ] = None,
+    outputs: Annotated[
+        Path | None,
+        typer.Option(
+            help="with --sumocfg: write every output the scenario names (detectors, summary, tripinfo, ...) "
+            "into this folder instead of where the sumocfg and its additionals put them"
         ),
     ] = None,
     seed: Annotated[
@@ -149,17 +168,28 @@ def populate_command(
 
     Ctrl-C stops after the step under way and keeps what was simulated (exit code 130)."""
     from behaviors.agents_table import agents_path
-    from behaviors.populate import PopulateInterrupted, config_from, populate
+    from behaviors.populate import PopulateInterrupted, config_from, populate, populate_policy
 
     level = verbosity(quiet, verbose)
+    if sumocfg is not None and share is None and overtakers is None and keepers is None:
+        raise BehaveError(
+            "--sumocfg needs --share F: the fraction of the scenario's passenger cars the policy drives "
+            "(--share 0: SUMO's cars alone)"
+        )
+    notes: list[str] = []
     config = config_from(
-        sumocfg, net=net, overtakers=overtakers, keepers=keepers, policy=policy, background=background,
+        sumocfg, notes, net=net, overtakers=overtakers, keepers=keepers, policy=policy, background=background,
         routes=routes, duration=duration, step_length=step_length, seed=seed, fcd=fcd, geo=geo,
         keep_count=keep_count, shield=shield, precision=precision, share=share,
-        overtaker_fraction=overtaker_fraction, gui=gui, driver=driver,
+        overtaker_fraction=overtaker_fraction, gui=gui, driver=driver, lateral_resolution=lateral_resolution,
+        outputs=outputs,
     )  # fmt: skip
     if plot is not None:  # found unwritable now, not after the whole run
         check_output_path(plot)
+    config.validate()
+    populate_policy(config)  # a policy that cannot drive the run is one line, before the notes
+    for note in notes if level >= 0 else ():  # what behave runs otherwise than `sumo -c` would, and why
+        typer.echo(f"note: {note}", err=True)
     progress = make_progress("simulating", config.duration, "s", level=level, stderr=json_out)
     try:
         summary = populate(config, on_step=progress.update, on_status=say(level, "set-up: "))

@@ -41,8 +41,12 @@ def sweep_command(
         ),
     ] = None,
     share: Annotated[
-        str, typer.Option(help="with --sumocfg: shares of passenger cars that become agents, e.g. 0,0.25,0.5")
-    ] = "0",
+        str | None,
+        typer.Option(
+            help="with --sumocfg (needed there): shares of passenger cars that become agents, e.g. "
+            "0,0.25,0.5 (0: SUMO's cars alone)"
+        ),
+    ] = None,
     seeds: Annotated[str, typer.Option(help="seeds, e.g. 0,1,2: each point runs once per seed")] = "0",
     policy: Annotated[
         list[str] | None,
@@ -94,7 +98,7 @@ def sweep_command(
     grid = Grid(
         sumocfgs=tuple(resolve_sumocfg(str(path)) for path in sumocfg or ()),
         nets=tuple(resolve_net(name) for name in net or ()),
-        shares=parse_numbers("--share", share, integer=False, high=1),  # type: ignore[arg-type]
+        shares=parse_numbers("--share", share or "0", integer=False, high=1),  # type: ignore[arg-type]
         seeds=parse_numbers("--seeds", seeds, integer=True, high=SEED_MAX),  # type: ignore[arg-type]
         policies=tuple(resolve_policy(spec) for spec in policy or ("traffic",)),
         overtakers=parse_numbers("--overtakers", overtakers, integer=True),
@@ -102,7 +106,15 @@ def sweep_command(
         background=background, overtaker_fraction=overtaker_fraction, duration=duration,
         step_length=step_length, shield=shield,
     )  # fmt: skip
-    points = check_grid(grid)
+    notes: list[str] = []
+    points = check_grid(grid, notes)
+    if sumocfg and share is None and overtakers is None and keepers is None:
+        raise BehaveError(
+            "--sumocfg needs --share: the fractions of the scenario's passenger cars the policy drives, "
+            "e.g. 0,0.25,0.5 (0: SUMO's cars alone)"
+        )
+    for note in notes if level >= 0 else ():  # how a scenario runs otherwise than `sumo -c` would, and why
+        typer.echo(f"sweep: note: {note}", err=True)
     result = run_sweep(
         points, out, workers=workers, address=ray_address, keep_fcd=keep_fcd,
         on_event=(lambda text: typer.echo(f"sweep: {text}", err=True)) if level >= 0 else None,

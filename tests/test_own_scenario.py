@@ -86,10 +86,11 @@ def roads_scenario(tmp: Path, roads: int, end: float, cars_per_hour: int = 2400)
     return cfg
 
 
-def plain_sumo_fcd(cfg: Path, fcd: Path, seed: int) -> pd.DataFrame:
-    """The scenario run by SUMO alone with the options behave documents it forces."""
+def plain_sumo_fcd(cfg: Path, fcd: Path, seed: int, *options: str) -> pd.DataFrame:
+    """The scenario run by SUMO alone with the options behave documents it forces (and `options`: what
+    a run with agents changes, and says)."""
     subprocess.run(
-        [sumo_binary("sumo"), "-c", str(cfg), "--seed", str(seed), "--lateral-resolution", "0.8",
+        [sumo_binary("sumo"), "-c", str(cfg), "--seed", str(seed), *options,
          "--no-step-log", "true", *COLLISION_OPTIONS, *fcd_options(fcd, geo=False)],
         check=True, capture_output=True,
     )  # fmt: skip
@@ -137,7 +138,8 @@ def test_cars_on_roads_without_agents_drive_exactly_as_in_plain_sumo(tmp_path):
     """SUMO's cars that never meet an agent keep their every row: converting other cars draws on
     no random stream they use. Sparse flows leave some roads without agents."""
     cfg = roads_scenario(tmp_path, roads=8, end=60.0, cars_per_hour=300)
-    fcd, plain = run_share(tmp_path, cfg, 0.2), plain_sumo_fcd(cfg, tmp_path / "plain.xml", seed=0)
+    with_agents = ("--step-length", "0.2", "--lateral-resolution", "0.8")  # the policy's step, sublanes
+    fcd, plain = run_share(tmp_path, cfg, 0.2), plain_sumo_fcd(cfg, tmp_path / "plain.xml", 0, *with_agents)
     agent_roads = set(fcd.loc[fcd["type"].isin(AGENT_TYPES), "lane"].str.split("_").str[0])
     road = fcd["lane"].str.split("_").str[0]
     ours = fcd[~road.isin(agent_roads)].reset_index(drop=True)
