@@ -764,6 +764,7 @@ def actuate_lanes(
     lane_followers: tuple[np.ndarray, np.ndarray] | None = None,
     asking: np.ndarray | None = None,
     time_headway: np.ndarray | None = None,
+    lane_bias: np.ndarray | None = None,
 ) -> LaneCommand:
     """One control step of the traffic driver for all agents.
 
@@ -785,7 +786,8 @@ def actuate_lanes(
     (`letting_in`). A car that wants more than the
     limit (`desired_speed` above `speed_limit`) drives at what it wants, as a share of real
     drivers and of SUMO's do. `time_headway` [N] s (None: the law's) is the headway each car follows
-    its leaders at.
+    its leaders at; `lane_bias` [N] m (None: 0) where in its lane each car holds itself, from the
+    centre line towards the fast side (people do not drive on the centre line).
     """
     steer = np.clip(actions[:, 0], -1.0, 1.0)
     traffic = lane_traffic(speed, desired_speed, gap, other_speed, lateral.following)
@@ -878,6 +880,8 @@ def actuate_lanes(
         speed_cut = new_speed > speed_cap
         new_speed = np.where(speed_cut, np.maximum(speed_cap, 0.0), new_speed)
     error = heading * lane_width - lane_offset
+    if lane_bias is not None:
+        error = error + lane_bias
     new_lateral, new_accel = lateral_profile(error, lateral_speed, lateral_accel, new_speed, dt, lateral)
     move = new_lateral * dt
     side_cut = np.zeros(len(move), bool)

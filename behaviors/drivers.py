@@ -176,6 +176,7 @@ class TrafficRows:
     asking: np.ndarray | None = None  # [N, 2] the fast-side, slow-side leader asks to come over (ditto)
     time_headway: np.ndarray = field(default_factory=lambda: np.zeros(0))  # s, the style's (StyledDriver)
     eagerness: np.ndarray = field(default_factory=lambda: np.zeros(0))  # to pass, the style's (StyledDriver)
+    lane_bias: np.ndarray = field(default_factory=lambda: np.zeros(0))  # m off the lane centre (ditto)
 
 
 class TrafficDriver:
@@ -251,6 +252,7 @@ class TrafficDriver:
             asking=None,
             time_headway=zeros,
             eagerness=zeros,
+            lane_bias=zeros,
         )
 
     def observe(self, fleet: Fleet, sim: SumoSim, sensing: Sensing, with_id: bool) -> Observed:
@@ -436,6 +438,7 @@ class TrafficDriver:
         lateral: LaneDriving,
         habits: LaneHabits | None,
         time_headway: np.ndarray | None = None,
+        lane_bias: np.ndarray | None = None,
     ) -> LaneCommand:
         """What `actuate_lanes` makes of `actions` for the fleet as last sensed (changes no rows)."""
         r, f, own = fleet.rows, fleet.rows.frame, fleet.rows.own
@@ -448,7 +451,7 @@ class TrafficDriver:
             fleet.dt, fleet.car, lateral, r.side_limit, r.speed_cap, lanes.lane_leads_on,
             self.may_begin(fleet), habits, (around.far_fast_gap, around.far_fast_speed),
             own.held_for,
-            (around.lane_follower_gap, around.lane_follower_speed), own.asking, time_headway,
+            (around.lane_follower_gap, around.lane_follower_speed), own.asking, time_headway, lane_bias,
         )  # fmt: skip
 
     @staticmethod
@@ -513,7 +516,11 @@ class StyledDriver(TrafficDriver):
     def new_rows(self, count: int, style: Styles | None) -> TrafficRows:
         rows = super().new_rows(count, style)
         style = fixed_styles(np.ones(count)) if style is None else style
-        rows.time_headway, rows.eagerness = style.time_headway, style.eagerness
+        rows.time_headway, rows.eagerness, rows.lane_bias = (
+            style.time_headway,
+            style.eagerness,
+            style.lane_bias,
+        )
         return rows
 
     def observe(self, fleet: Fleet, sim: SumoSim, sensing: Sensing, with_id: bool) -> Observed:
@@ -541,13 +548,14 @@ class StyledDriver(TrafficDriver):
         n = len(own.eagerness)
         habits = self.teacher_habits(own.eagerness)
         neutral = np.tile(np.array([0.0, 0.5, 0.0]), (n, 1))  # the law as it is: no push, no brake
-        command = self._command(fleet, neutral, self._teacher_lanes, habits, own.time_headway)
+        command = self._command(fleet, neutral, self._teacher_lanes, habits, own.time_headway, own.lane_bias)
         own.held_for = np.where(~fleet.rows.handed, command.held_for, 0.0)
         steer = command.changing.astype(np.float32)
         return np.stack([steer, action_of_headway(own.time_headway), np.zeros(n)], axis=1).astype(np.float32)
 
     def actuate(self, fleet: Fleet, actions: np.ndarray) -> Actuation:
-        command = self._command(fleet, actions, self.lateral, None, headway_of_action(actions[:, 1]))
+        headway = headway_of_action(actions[:, 1])
+        command = self._command(fleet, actions, self.lateral, None, headway, fleet.rows.own.lane_bias)
         return self._carry(fleet, command, held_for=False)
 
 

@@ -27,6 +27,11 @@ Overtakers are the faster drivers, up to SUMO's top sixth: wanting 0.97-1.07 the
 slower half of SUMO's cars, and on motorway3 no more than 1.99-2.5 times as many cars per km as
 keepers (`make own-nets`, seeds 0-9), where the paper's overtakers make twice the keepers' progress."""
 
+LANE_BIAS_SD = 0.3
+"""m: drivers hold themselves off their lane's centre line, each in its own place (highD: a mean of
+about 0.3 m off it; a normal of this spread has a mean |offset| of 0.24 m)."""
+LANE_BIAS_MAX = 0.5
+"""m: never further off than this (a 1.8 m car in a 3.5 m lane has 0.85 m of room each side)."""
 HEADWAY_RANGE = (0.5, 3.0)
 """s: the time headways a style may ask for, and that the network's accel action spans."""
 
@@ -73,6 +78,7 @@ class Styles:
     desired_fraction: np.ndarray  # [N] desired speed as a share of the local limit
     time_headway: np.ndarray  # [N] s: the headway the driver wants to follow at
     eagerness: np.ndarray  # [N] in [0, 1]: how readily it passes a slower car
+    lane_bias: np.ndarray  # [N] m from the lane's centre line (+ fast side) where it holds itself
 
     def __len__(self) -> int:
         return len(self.desired_fraction)
@@ -94,14 +100,15 @@ def draw_styles(
             dist.headway_median * np.exp(rng.normal(0.0, dist.headway_sigma, k)), *HEADWAY_RANGE
         )
         eager[mask] = rng.beta(dist.eagerness_a, dist.eagerness_b, k)
-    return Styles(speed, headway, eager)
+    bias = np.clip(rng.normal(0.0, LANE_BIAS_SD, n), -LANE_BIAS_MAX, LANE_BIAS_MAX)
+    return Styles(speed, headway, eager, bias)
 
 
 def fixed_styles(desired_fraction: np.ndarray) -> Styles:
     """Styles that differ only in desired speed: the middle of HEADWAY_RANGE's usual drivers (1.4 s)
     and of eagerness (0.5), for drivers whose behaviour is set otherwise."""
     n = len(desired_fraction)
-    return Styles(np.asarray(desired_fraction, float), np.full(n, 1.4), np.full(n, 0.5))
+    return Styles(np.asarray(desired_fraction, float), np.full(n, 1.4), np.full(n, 0.5), np.zeros(n))
 
 
 def read_population(name_or_path: str) -> tuple[StyleDistribution, StyleDistribution]:

@@ -166,3 +166,19 @@ def test_the_styled_reward_follows_each_drivers_style():
     gap_step.gap[:, 0] = [7.5, 15.0]  # 0.3 s and 0.6 s
     near = styled_rewards(close, weights).values["headway"]
     assert near[0] < near[1] == 0.0  # closer than the safety headway costs even when the style asks
+
+
+def test_a_driver_holds_itself_where_its_style_puts_it_in_the_lane():
+    def sideways(bias: float | None) -> float:
+        out = actuate_lanes(
+            np.array([[0.0, 0.6, 0.0]]), np.array([30.0]), np.array([33.0]), *NO_LEADERS, np.zeros(1),
+            np.zeros(1), np.array([0]), np.zeros(1), np.array([3.5]), np.array([1]), np.array([1]),
+            np.zeros(1), np.array([5.25]), np.array([33.3]), 0.2, CarModel(), STYLED_LANES,
+            time_headway=np.array([1.4]), lane_bias=None if bias is None else np.array([bias]),
+        )  # fmt: skip
+        return float(out.actuation.lateral_speed[0])
+
+    assert sideways(None) == 0.0  # on its lane's centre line, it stays there
+    assert sideways(0.4) > 0.0 > sideways(-0.4)  # drawn off it, it moves to its own place
+    styles = draw_styles(np.zeros(4000), np.random.default_rng(1))
+    assert 0.2 < np.abs(styles.lane_bias).mean() < 0.3 and np.abs(styles.lane_bias).max() <= 0.5
