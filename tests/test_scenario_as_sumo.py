@@ -104,6 +104,16 @@ def test_share_0_is_sumo_c_with_the_same_options_and_the_summary_counts_its_vehi
     assert summary["scenario_passenger_cars"] == summary["vehicles"] and summary["of_them_agents"] == 0
 
 
+def test_without_agents_any_step_sumo_takes_holds(tmp_path):
+    """A 2 s sumocfg was refused (populate's steps went to 1 s) though no policy drives in it."""
+    from behaviors.populate import config_from, populate
+
+    cfg = road_scenario(tmp_path / "scenario", time='<end value="40"/><step-length value="2"/>')
+    fcd = tmp_path / "o.xml"
+    populate(config_from(cfg, share=0.0, fcd=fcd))
+    assert read_fcd(fcd)["time"].diff().max() == pytest.approx(2.0)
+
+
 def test_the_summary_counts_the_scenarios_vehicles(tmp_path):
     """It said `vehicles 0` for a scenario's 1,000: only behave's own cars were counted."""
     from behaviors.populate import config_from, populate
