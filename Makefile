@@ -10,7 +10,7 @@ PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 WORKERS ?= 1
 
-.PHONY: setup run test typecheck lint bench bench-scale soak learn-check pretrained traffic-policy paper realism own-nets dense flow ablation clean
+.PHONY: setup run test typecheck lint bench bench-scale soak learn-check pretrained traffic-policy paper realism own-nets dense flow ablation people clean
 
 setup: $(DEV_STAMP)
 
@@ -85,6 +85,12 @@ flow: $(STAMP)
 # --driver rules, light and dense highway, seeds 0-2 (about 20 min of one core); writes docs/ablation.md
 ablation: $(STAMP)
 	$(BIN)/python benchmarks/ablation.py --seeds 0,1,2 --duration 1800
+
+# like people (issue 43): a highD-like 2-lane Autobahn at 130 km/h with a fifth lorries, SUMO alone and every
+# car learned (traffic.pt; styled.pt too once it exists), closest headways, lane changes, mean speeds and lane
+# keeping through a 420 m window against highD's published figures, seeds 0-2 (a few minutes); docs/people.md
+people: $(STAMP)
+	$(BIN)/python benchmarks/people.py --seeds 0,1,2 --duration 900
 
 paper: $(STAMP)
 	$(BIN)/python benchmarks/paper.py --seed $(SEED)
