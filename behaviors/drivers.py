@@ -58,12 +58,14 @@ from behaviors.sim import SumoSim
 from behaviors.styles import (
     HEADWAY_RANGE,
     PRESETS,
+    Population,
     Styles,
     action_of_headway,
     desired_fractions,
     draw_styles,
     fixed_styles,
     headway_of_action,
+    unstyled,
 )
 
 JUNCTION_LEADS_ON = 1e4
@@ -125,7 +127,7 @@ class PaperDriver:
     def draw_style(self, behaviour_id: np.ndarray, rng: np.random.Generator) -> Styles:
         """Desired speeds, which the paper's driver does not use: drawn all the same, so that a run's
         random stream does not depend on the driver."""
-        return fixed_styles(desired_fractions(behaviour_id, rng))
+        return unstyled(desired_fractions(behaviour_id, rng))
 
     def new_rows(self, count: int, style: Styles | None) -> None:
         return None
@@ -230,7 +232,7 @@ class TrafficDriver:
     def draw_style(self, behaviour_id: np.ndarray, rng: np.random.Generator) -> Styles:
         """Each agent's desired speed as a share of the local limit (its law's headway is the same for
         all, and its habits are its behaviour's)."""
-        return fixed_styles(desired_fractions(behaviour_id, rng))
+        return unstyled(desired_fractions(behaviour_id, rng))
 
     def new_rows(self, count: int, style: Styles | None) -> TrafficRows:
         zeros = np.zeros(count)
@@ -492,9 +494,9 @@ class StyledDriver(TrafficDriver):
     name = "styled"
     normalisation = TrafficDriver.normalisation + ", time headway/3 s, eagerness in [0, 1]"
 
-    def __init__(self, lateral: LaneDriving | None = None) -> None:
+    def __init__(self, lateral: LaneDriving | None = None, population: Population | None = None) -> None:
         super().__init__(STYLED_LANES if lateral is None else lateral)
-        self.population = PRESETS["default"]
+        self.population = PRESETS["default"] if population is None else population
         self._teacher_lanes = replace(self.lateral, network_chooses=False)
 
     def obs_size(self, with_id: bool) -> int:
@@ -567,11 +569,18 @@ DRIVERS: dict[str, type[PaperDriver] | type[TrafficDriver]] = {
 """Every driver model by name: `--driver NAME`, and the name a checkpoint records."""
 
 
-def make_driver(name: str) -> PaperDriver | TrafficDriver:
-    """A new driver of that name (one per fleet: a driver may cache per road)."""
+def make_driver(name: str, population: Population | None = None) -> PaperDriver | TrafficDriver:
+    """A new driver of that name (one per fleet: a driver may cache per road); `population`: the style
+    distributions its agents draw from (only a driver with styles takes one)."""
     if name not in DRIVERS:
         raise BehaveError(f"unknown driver '{name}' (choose from {', '.join(DRIVERS)})")
-    return DRIVERS[name]()
+    if population is None:
+        return DRIVERS[name]()
+    if name != StyledDriver.name:
+        raise BehaveError(
+            f"--population draws driver styles, which the {name} driver has none of (use a styled policy)"
+        )
+    return StyledDriver(population=population)
 
 
 def driver_of_obs_size(obs_dim: int) -> tuple[str, bool]:

@@ -48,6 +48,7 @@ from behaviors.agents_table import (
     END_REASONS,
     LONG_STANDSTILL_S,
     STANDSTILL_SPEED,
+    STYLE_COLUMNS,
     AgentRun,
     agents_path,
     cell,
@@ -76,6 +77,7 @@ from behaviors.scenario_config import (
     share_draw,
 )
 from behaviors.sim import SimOptions, SumoSim, VehicleState, check_display
+from behaviors.styles import Styles, read_population
 from behaviors.timing import PhaseTimer
 from behaviors.traffic_env import VTYPES
 from sumo_scenarios import get_scenario
@@ -109,6 +111,7 @@ class PopulateConfig:
     driver: str | None = None  # None: the policy's own; "rules": the traffic driver's rules, no policy
     lateral_resolution: float | None = None  # with a sumocfg: SUMO's sublane width (m); None: lateral_for
     outputs: Path | None = None  # with a sumocfg: the folder its own outputs (detectors, summary, ...) go to
+    population: str | None = None  # the styled driver's: a preset name or a JSON file of style distributions
 
     @property
     def has_agents(self) -> bool:
@@ -380,10 +383,14 @@ class AgentRow(AgentRun):
     """One learned agent's run: a line of `<fcd stem>.agents.csv`, with populate's incident columns."""
 
     incident: Incident = NO_INCIDENT
+    style: tuple[float, ...] = (np.nan,) * len(STYLE_COLUMNS)
 
     def cells(self) -> list[Any]:
         """The row's CSV cells in `agents_table.columns("populate")` order."""
-        return [*super().cells(), *(cell(value) for value in astuple(self.incident))]
+        return [
+            *super().cells(), *(cell(value) for value in astuple(self.incident)),
+            *(cell(value) for value in self.style),
+        ]  # fmt: skip
 
 
 def collision_incident(
@@ -441,11 +448,16 @@ class AgentLog:
         self.distance = np.zeros(0)  # SUMO's speed x step: its odometer under its Euler update
         self.standing = np.zeros(0)  # seconds standing still up to now
         self.longest = np.zeros(0)
+        self.style = np.zeros((0, len(STYLE_COLUMNS)))
         self.ended = EndedAgents()
 
-    def join(self, ids: list[str], behaviour: list[str], time: float) -> None:
+    def join(self, ids: list[str], behaviour: list[str], time: float, style: Styles) -> None:
         zeros = np.zeros(len(ids))
         self.ids, self.behaviour = self.ids + ids, self.behaviour + behaviour
+        drawn = np.stack(
+            [style.desired_fraction, style.time_headway, style.eagerness, style.lane_bias], axis=1
+        )
+        self.style = np.concatenate([self.style, drawn])
         self.depart = np.concatenate([self.depart, zeros + time])
         self.distance = np.concatenate([self.distance, zeros])
         self.standing = np.concatenate([self.standing, zeros])
@@ -471,6 +483,7 @@ class AgentLog:
         self.behaviour = [b for b, k in zip(self.behaviour, keep.tolist(), strict=True) if k]
         self.depart, self.distance = self.depart[keep], self.distance[keep]
         self.standing, self.longest = self.standing[keep], self.longest[keep]
+        self.style = self.style[keep]
 
     def driving(self, time: float) -> list[AgentRow]:
         """The agents still on the road, ending `still_driving` at `time`."""
@@ -481,7 +494,7 @@ class AgentLog:
         depart, distance, longest = float(self.depart[k]), float(self.distance[k]), float(self.longest[k])
         return AgentRow(
             self.ids[k], self.behaviour[k], vtype, self.policy, round(depart, 3), round(time, 3), reason,
-            round(distance, 2), round(longest, 3), incident,
+            round(distance, 2), round(longest, 3), incident, tuple(round(float(v), 3) for v in self.style[k]),
         )  # fmt: skip
 
 
@@ -548,7 +561,8 @@ class Population:
         self._check_capacity()
         self.rng = np.random.default_rng(config.seed)
         self.timer = PhaseTimer()
-        driver = make_driver(self.policy.driver)
+        population = None if config.population is None else read_population(config.population)
+        driver = make_driver(self.policy.driver, population)
         self.fleet = Fleet(self.geometry, CarModel(), config.step_length, self.timer, driver, config.shield)
         self.summary = PopulateSummary(sumo=SumoCars(config.step_length))
         self.log = AgentLog(config.step_length, self.policy.label)
@@ -623,7 +637,7 @@ class Population:
             behaviour = np.array([1.0 if self.pending[v] == "overtaker" else 0.0 for v in agents])
             style = self.fleet.driver.draw_style(behaviour, self.rng)
             self.fleet.add(agents, sim.read_speeds(agents), behaviour, style)
-            self.log.join(agents, [self.pending[v] for v in agents], time)
+            self.log.join(agents, [self.pending[v] for v in agents], time, style)
         self.background_ids.update(v for v in joined if self.pending[v] == "background")
         self.summary.vehicles += len(joined)
         kinds = [self.pending[v] for v in failed]
@@ -712,7 +726,7 @@ class Population:
         behaviour = np.array([1.0 if kind == "overtaker" else 0.0 for kind in kinds])
         style = self.fleet.driver.draw_style(behaviour, self.rng)
         self.fleet.add(agents, sim.read_speeds(agents), behaviour, style)
-        self.log.join(agents, kinds, time)
+        self.log.join(agents, kinds, time, style)
 
     def _observe_agents(self, present: np.ndarray, speed: np.ndarray) -> None:
         """Log SUMO's `speed` of each agent it still has, not the one commanded: SUMO may hold a

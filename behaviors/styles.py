@@ -67,7 +67,9 @@ KEEPER = StyleDistribution(0.93, 0.06, (0.8, 1.05), 1.6, 0.3, 2.0, 6.0)
 """Lane keepers: at or under the limit, longer headways, seldom pass (eagerness mean 0.25)."""
 OVERTAKER = StyleDistribution(1.07, 0.06, (0.95, 1.25), 1.25, 0.3, 6.0, 2.0)
 """Overtakers: faster, closer, keen to pass (eagerness mean 0.75)."""
-PRESETS = {"default": (KEEPER, OVERTAKER)}
+Population = tuple[StyleDistribution, StyleDistribution]
+"""The keeper and the overtaker distribution of a population."""
+PRESETS: dict[str, Population] = {"default": (KEEPER, OVERTAKER)}
 """Named populations: the keeper and the overtaker distribution."""
 
 
@@ -111,7 +113,14 @@ def fixed_styles(desired_fraction: np.ndarray) -> Styles:
     return Styles(np.asarray(desired_fraction, float), np.full(n, 1.4), np.full(n, 0.5), np.zeros(n))
 
 
-def read_population(name_or_path: str) -> tuple[StyleDistribution, StyleDistribution]:
+def unstyled(desired_fraction: np.ndarray) -> Styles:
+    """The style of drivers whose headway, eagerness and place in the lane are not drawn (their law
+    and habits set them): the desired speed alone, the rest NaN."""
+    nan = np.full(len(desired_fraction), np.nan)
+    return Styles(np.asarray(desired_fraction, float), nan, nan.copy(), nan.copy())
+
+
+def read_population(name_or_path: str) -> Population:
     """A preset's name, or a JSON file {"keeper": {...}, "overtaker": {...}} whose objects hold every
     field of StyleDistribution."""
     if name_or_path in PRESETS:

@@ -80,6 +80,13 @@ def populate_command(
             "training run's directory [default: traffic]"
         ),
     ] = None,
+    population: Annotated[
+        str | None,
+        typer.Option(
+            help="the styled driver's population: a preset ('default') or a JSON file of style "
+            "distributions (docs/manual/traffic-driver.md)"
+        ),
+    ] = None,
     driver: Annotated[
         str | None,
         typer.Option(
@@ -182,7 +189,7 @@ def populate_command(
         routes=routes, duration=duration, step_length=step_length, seed=seed, fcd=fcd, geo=geo,
         keep_count=keep_count, shield=shield, precision=precision, share=share,
         overtaker_fraction=overtaker_fraction, gui=gui, driver=driver, lateral_resolution=lateral_resolution,
-        outputs=outputs,
+        outputs=outputs, population=population,
     )  # fmt: skip
     if plot is not None:  # found unwritable now, not after the whole run
         check_output_path(plot)

@@ -3,14 +3,20 @@ with the rules only forbidding, and the teacher that gives the network its first
 
 from __future__ import annotations
 
+import csv
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import behave
 
 from behaviors.actuation import CarModel, LaneDriving, actuate_lanes
+from behaviors.ddpg.checkpoint import save_checkpoint
+from behaviors.ddpg.networks import Actor
 from behaviors.drivers import STYLED_LANES, STYLED_OBS_SIZE, StyledDriver
 from behaviors.errors import BehaveError
+from behaviors.populate import PopulateConfig, populate
 from behaviors.rewards import TrafficStep, TrafficWeights, styled_rewards
 from behaviors.styles import (
     HEADWAY_RANGE,
@@ -182,3 +188,44 @@ def test_a_driver_holds_itself_where_its_style_puts_it_in_the_lane():
     assert sideways(0.4) > 0.0 > sideways(-0.4)  # drawn off it, it moves to its own place
     styles = draw_styles(np.zeros(4000), np.random.default_rng(1))
     assert 0.2 < np.abs(styles.lane_bias).mean() < 0.3 and np.abs(styles.lane_bias).max() <= 0.5
+
+
+def styled_checkpoint(path: Path) -> Path:
+    """An untrained styled-driver actor: which styles are drawn does not depend on how it drives."""
+    meta = {
+        "algorithm": "ps-ddpg", "driver": "styled", "behaviour": "multi",
+        "behaviours": ["overtaking", "lanekeeping"],
+        "obs_dim": STYLED_OBS_SIZE, "observation_layout": "test", "normalisation": "test", "hidden": [16, 16],
+        "training_steps": 0,
+    }  # fmt: skip
+    save_checkpoint(path, actor_state=Actor(STYLED_OBS_SIZE, (16, 16)).state_dict(), meta=meta)
+    return path
+
+
+@pytest.mark.sumo
+def test_populate_draws_each_agents_style_from_the_population_and_tables_it(tmp_path):
+    policy = styled_checkpoint(tmp_path / "styled.pt")
+    calm = dict(KEEPER.__dict__, headway_median=2.5, headway_sigma=0.0, speed_range=list(KEEPER.speed_range))
+    population = tmp_path / "calm.json"
+    population.write_text(json.dumps({"keeper": calm, "overtaker": calm}))
+    fcd = tmp_path / "run.xml"
+    populate(PopulateConfig(policy=policy, duration=10.0, background=4, fcd=fcd, population=str(population)))
+    with (tmp_path / "run.agents.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 8
+    assert all(float(r["style_time_headway_s"]) == 2.5 for r in rows)
+    assert all(
+        0.0 <= float(r["style_eagerness"]) <= 1.0 and abs(float(r["style_lane_bias_m"])) <= 0.5 for r in rows
+    )
+    traffic = tmp_path / "traffic.xml"
+    populate(PopulateConfig(duration=5.0, background=0, fcd=traffic))
+    with (tmp_path / "traffic.agents.csv").open() as f:
+        unstyled = list(csv.DictReader(f))
+    assert unstyled[0]["style_speed_factor"] != "" and unstyled[0]["style_time_headway_s"] == ""
+
+
+@pytest.mark.sumo
+def test_a_population_for_a_driver_without_styles_is_one_line(tmp_path):
+    out = behave("populate", "--population", "default", "--duration", "5", "--fcd", str(tmp_path / "f.xml"))
+    assert out.returncode != 0 and "Traceback" not in out.stderr
+    assert out.stderr.strip().splitlines()[-1].startswith("behave: error: --population draws driver styles")
