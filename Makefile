@@ -10,7 +10,7 @@ PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 WORKERS ?= 1
 
-.PHONY: setup run test typecheck lint bench bench-scale soak learn-check pretrained traffic-policy paper realism own-nets dense flow ablation people styled-policy clean
+.PHONY: setup run test typecheck lint bench bench-scale soak learn-check pretrained traffic-policy paper realism own-nets dense flow ablation people styled-policy styles clean
 
 setup: $(DEV_STAMP)
 
@@ -74,6 +74,10 @@ STYLED_SEEDS ?= 1 2 3 4 5 6 7 8
 styled-policy: $(STAMP)
 	for s in $(STYLED_SEEDS); do $(BIN)/python benchmarks/make_styled.py --episodes 10 --seed $$s --collect-only || exit 1; done
 	$(BIN)/python benchmarks/make_styled.py --fit-only $(foreach s,$(STYLED_SEEDS),--demos runs/styled/demos_seed$(s).npz)
+
+# does each styled agent drive as its style asks (writes docs/styles.md)
+styles: $(STAMP)
+	$(BIN)/python benchmarks/style_response.py
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/traffic_bars.py --seeds 0,1,2 --duration 600
