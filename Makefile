@@ -10,7 +10,7 @@ PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 WORKERS ?= 1
 
-.PHONY: setup run test typecheck lint bench bench-scale soak learn-check pretrained traffic-policy paper realism own-nets dense flow ablation people styled-policy styles clean
+.PHONY: setup run test test-fast typecheck lint bench bench-scale soak learn-check pretrained traffic-policy paper realism own-nets dense flow ablation people styled-policy styles clean
 
 setup: $(DEV_STAMP)
 
@@ -35,6 +35,10 @@ run: $(STAMP)
 
 test: $(DEV_STAMP)
 	$(BIN)/python -m pytest
+
+# the tests that start no SUMO and train nothing (markers in pyproject.toml): about a minute
+test-fast: $(DEV_STAMP)
+	$(BIN)/python -m pytest -m "not sumo and not train"
 
 typecheck: $(DEV_STAMP)
 	$(BIN)/mypy

@@ -35,6 +35,7 @@ def test_report_reads_a_table_written_before_the_shared_schema(tmp_path):
     assert table is not None and list(table["id"]) == ["keeper_0"]
 
 
+@pytest.mark.sumo
 def test_evaluate_records_its_episodes_agents_in_the_shared_table(tmp_path):
     config = EnvConfig(scenario="tiny", agents=2, max_steps=20)
     hold = lambda obs, slots: np.tile(np.float32([0.0, 0.3, 0.0]), (len(obs), 1))  # noqa: E731

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import behave
 from PIL import Image
 
 from behaviors.animate import (
@@ -23,14 +24,7 @@ from behaviors.animate import (
 from behaviors.export import read_fcd
 from sumo_scenarios import get_scenario
 
-BEHAVE = [sys.executable, "-m", "behaviors.cli"]
 DURATION = 10.0
-
-
-def behave(
-    *args: str, cwd: Path | None = None, env: dict[str, str] | None = None
-) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*BEHAVE, *args], capture_output=True, text=True, timeout=300, cwd=cwd, env=env)
 
 
 @pytest.fixture(scope="module")
@@ -107,6 +101,7 @@ def test_the_followed_view_waits_where_the_car_enters_and_stays_where_it_leaves(
     np.testing.assert_allclose(centres, [[0.0, 0.0], [5.0, 0.0], [10.0, 0.0]])
 
 
+@pytest.mark.sumo
 def test_the_net_a_populate_fcd_names_is_found(fcd: Path, tmp_path: Path):
     assert named_net(fcd) == get_scenario("highway").net
     other = tmp_path / "other.xml"
@@ -117,6 +112,7 @@ def test_the_net_a_populate_fcd_names_is_found(fcd: Path, tmp_path: Path):
 # the command on a real run -------------------------------------------------------------------
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("every", [0.5, 2.0])
 def test_a_gif_has_one_frame_per_requested_interval(fcd: Path, tmp_path: Path, every: float):
     out = tmp_path / "run.gif"
@@ -129,6 +125,7 @@ def test_a_gif_has_one_frame_per_requested_interval(fcd: Path, tmp_path: Path, e
     assert [p.name for p in tmp_path.iterdir()] == ["run.gif"]  # no temp file left
 
 
+@pytest.mark.sumo
 def test_follow_keeps_the_vehicle_in_the_middle_of_the_view(fcd: Path, tmp_path: Path):
     out = tmp_path / "follow.gif"
     records = read_fcd(fcd)["id"].astype(str)
@@ -148,6 +145,7 @@ def test_follow_keeps_the_vehicle_in_the_middle_of_the_view(fcd: Path, tmp_path:
     assert frames(whole)[0].shape != shown[0].shape  # a 3 km strip, not the square window
 
 
+@pytest.mark.sumo
 def test_an_fcd_without_a_net_named_is_drawn_with_net_given(fcd: Path, tmp_path: Path):
     bare = tmp_path / "bare.xml"
     bare.write_text(fcd.read_text().replace("net=highway.net.xml", "net=elsewhere.net.xml"))
@@ -158,6 +156,7 @@ def test_an_fcd_without_a_net_named_is_drawn_with_net_given(fcd: Path, tmp_path:
     assert len(frames(tmp_path / "b.gif")) == 2
 
 
+@pytest.mark.sumo
 def test_bad_input_is_one_line_and_writes_nothing(fcd: Path, tmp_path: Path):
     gif = str(tmp_path / "x.gif")
     assert "no such vehicle" in one_error(behave("animate", str(fcd), "--out", gif, "--follow", "nobody"))
@@ -170,6 +169,7 @@ def test_bad_input_is_one_line_and_writes_nothing(fcd: Path, tmp_path: Path):
     assert list(tmp_path.glob("x.*")) == []
 
 
+@pytest.mark.sumo
 def test_mp4_without_ffmpeg_says_why(fcd: Path, tmp_path: Path):
     """PATH without ffmpeg and the video extra hidden (a Python that cannot import it)."""
     hide = tmp_path / "hide"
@@ -181,6 +181,7 @@ def test_mp4_without_ffmpeg_says_why(fcd: Path, tmp_path: Path):
     assert not (tmp_path / "run.mp4").exists()
 
 
+@pytest.mark.sumo
 def test_mp4_with_the_video_extras_ffmpeg(fcd: Path, tmp_path: Path):
     pytest.importorskip("imageio_ffmpeg", reason="the video extra (make test installs it)")
     done = behave("animate", str(fcd), "--out", str(tmp_path / "run.mp4"), "--every", "2")

@@ -342,6 +342,7 @@ def bandit_reward(obs: np.ndarray, act: np.ndarray) -> np.ndarray:
     return -(err**2).sum(1).astype(np.float32)
 
 
+@pytest.mark.train
 def test_learns_a_one_step_bandit() -> None:
     """Terminal transitions, so Q is just the reward; the policy must climb the critic from its
     start (0, .5, .05) to the optimum, >= .26 away per dimension on average."""

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
 import torch
+from helpers import behave
 
 from behaviors.train import TrainConfig, prepare_run
 
@@ -22,12 +21,8 @@ SMALL = {"scenario": "tiny", "agents": 2, "max_steps": 40, "warmup": 32, "batch_
          "hidden": (32, 32), "buffer_size": 5000, "checkpoint_every": 1}  # fmt: skip
 
 
-def behave(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "behaviors.cli", *args], capture_output=True, text=True, timeout=300
-    )
-
-
+@pytest.mark.sumo
+@pytest.mark.train
 def test_two_workers_train_checkpoint_and_resume_on_tiny(tmp_path: Path) -> None:
     """Two workers (two SUMOs: one process could not hold both) feed one learner: its buffer holds
     every agent step of both workers' episodes, it updates, and --resume continues the run."""
@@ -46,6 +41,7 @@ def test_two_workers_train_checkpoint_and_resume_on_tiny(tmp_path: Path) -> None
         assert (run / "checkpoints" / f"{name}.pt").is_file()
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize(
     ("args", "message"),
     [

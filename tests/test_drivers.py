@@ -53,6 +53,7 @@ def run_speeds(driver: str, steps: int = 60) -> np.ndarray:
         env.close()
 
 
+@pytest.mark.sumo
 def test_a_new_driver_is_one_class_and_one_registration(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(DRIVERS, CautiousDriver.name, CautiousDriver)
     cautious, usual = run_speeds("cautious"), run_speeds("traffic")

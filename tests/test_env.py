@@ -53,6 +53,7 @@ def drive(env, actions_fn, steps):
     return batch
 
 
+@pytest.mark.sumo
 def test_a_steer_command_moves_the_car_sideways_by_the_expected_amount(tiny):
     tiny.reset_arrays(3)
     drive(tiny, lambda o: np.array([[0.0, 1.0, 0.0]]), 30)  # 30 steps at full throttle: 18 m/s
@@ -70,6 +71,7 @@ def test_a_steer_command_moves_the_car_sideways_by_the_expected_amount(tiny):
     assert offset_of(tiny, 0) - before == pytest.approx(v0 * np.sin(yaw * dt) * dt, abs=1e-3)
 
 
+@pytest.mark.sumo
 def test_brake_stops_the_car(tiny):
     tiny.reset_arrays(3)
     drive(tiny, lambda o: np.array([[0.0, 1.0, 0.0]]), 40)
@@ -81,6 +83,7 @@ def test_brake_stops_the_car(tiny):
     np.testing.assert_allclose(tiny.sim.read_vehicles().position, pos)
 
 
+@pytest.mark.sumo
 def test_steering_into_the_border_is_off_track_and_removes_the_agent(tiny):
     tiny.reset_arrays(3)
     drive(tiny, lambda o: np.array([[0.0, 1.0, 0.0]]), 20)
@@ -90,6 +93,7 @@ def test_steering_into_the_border_is_off_track_and_removes_the_agent(tiny):
     assert tiny.agents == [] and "agent_0" not in tiny.sim.vehicle_ids()
 
 
+@pytest.mark.sumo
 def test_a_rear_end_collision_removes_the_crashed_agents_and_the_others_drive_on():
     env = make_env("tiny", agents=3, seed=1, max_steps=300, start_speed=0.0)
     try:
@@ -125,6 +129,7 @@ def test_a_rear_end_collision_removes_the_crashed_agents_and_the_others_drive_on
         env.close()
 
 
+@pytest.mark.sumo
 def test_no_progress_terminates_after_five_seconds_standing(tiny):
     tiny.reset_arrays(3)
     batch = drive(tiny, lambda o: np.array([[0.0, 0.0, 1.0]]), 30)
@@ -132,6 +137,7 @@ def test_no_progress_terminates_after_five_seconds_standing(tiny):
     assert tiny.steps == 25  # 5 s at 0.2 s per step
 
 
+@pytest.mark.sumo
 def test_the_time_limit_truncates_and_keeps_the_last_observation():
     env = make_env("ring", agents=2, seed=0, max_steps=20)
     try:
@@ -144,6 +150,7 @@ def test_the_time_limit_truncates_and_keeps_the_last_observation():
         env.close()
 
 
+@pytest.mark.sumo
 def test_parallel_api_test_passes():
     env = make_env("tiny", agents=2, seed=0, max_steps=60)
     try:
@@ -152,6 +159,7 @@ def test_parallel_api_test_passes():
         env.close()
 
 
+@pytest.mark.sumo
 def test_same_seed_and_actions_give_identical_observations_over_200_steps():
     def run() -> np.ndarray:
         env = make_env(
@@ -174,6 +182,7 @@ def test_same_seed_and_actions_give_identical_observations_over_200_steps():
     np.testing.assert_array_equal(first, second)
 
 
+@pytest.mark.sumo
 def test_multi_behaviour_placements_put_the_ids_where_asked():
     assert EnvConfig(behaviour="multi", overtakers=2, keepers=2, placement="A").behaviour_ids().tolist() == [
         1,
@@ -200,6 +209,7 @@ def test_multi_behaviour_placements_put_the_ids_where_asked():
         env.close()
 
 
+@pytest.mark.sumo
 def test_overtaking_puts_slower_passive_cars_ahead():
     env = make_env("ring", behaviour="overtaking", agents=3, opponents=2, seed=4)
     try:
@@ -212,6 +222,7 @@ def test_overtaking_puts_slower_passive_cars_ahead():
         env.close()
 
 
+@pytest.mark.sumo
 def test_multi_behaviour_can_have_passive_cars_to_overtake_and_passing_counts_overtakers_only():
     assert EnvConfig(behaviour="multi", overtakers=1, keepers=1).n_opponents == 0  # the paper's setting
     env = make_env("ring", behaviour="multi", overtakers=2, keepers=2, opponents=2, seed=4)
@@ -264,6 +275,7 @@ def write_net(tmp: Path, lanes: int) -> Path:
     return net
 
 
+@pytest.mark.sumo
 def test_bad_network_files_raise_a_clear_error(tmp_path):
     from behaviors.geometry import load_geometry
 
@@ -278,6 +290,7 @@ def test_bad_network_files_raise_a_clear_error(tmp_path):
     assert load_geometry(write_net(tmp_path, lanes=2)).edges["e"].lanes == 2
 
 
+@pytest.mark.sumo
 def test_start_speed_is_drawn_per_episode_or_fixed():
     env = make_env("ring", agents=3, seed=7, max_steps=10)
     try:
@@ -316,6 +329,7 @@ def test_vehicle_state_without_removed_cars_drops_exactly_their_rows():
     assert state.longest == 16.5 and left.longest == 9.0
 
 
+@pytest.mark.sumo
 def test_the_lane_term_measures_the_offset_from_the_lane_centre_sumo_reports():
     env = make_env("tiny", agents=1, seed=3, max_steps=400, start_speed=15.0, lane_weight=0.5)
     try:

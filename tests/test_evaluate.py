@@ -68,6 +68,7 @@ def checkpoint(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.mark.sumo
 def test_evaluate_writes_table_csv_markdown_and_png(tmp_path, checkpoint):
     out = tmp_path / "report"
     result = CliRunner().invoke(app, [
@@ -127,6 +128,7 @@ def test_a_traffic_policy_gets_its_driver_its_roads_and_four_plus_four_agents():
         plan_evaluation([Path("traffic"), Path("multi")], **options)
 
 
+@pytest.mark.sumo
 def test_the_traffic_driver_is_evaluated_with_realism_on_and_says_why_it_has_no_report(tmp_path):
     out = tmp_path / "report"
     result = CliRunner().invoke(app, ["evaluate", "traffic", "--overtakers", "1", "--keepers", "1",

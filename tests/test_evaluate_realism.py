@@ -67,6 +67,7 @@ def test_stacked_runs_never_meet() -> None:
     )  # 15 m at 30 m/s
 
 
+@pytest.mark.sumo
 def test_evaluate_writes_the_realism_report_of_real_runs(tmp_path: Path) -> None:
     """One network for keepers and overtakers among slower SUMO cars on the ring, and SUMO's drivers."""
     out = tmp_path / "eval"
@@ -96,6 +97,7 @@ def test_evaluate_writes_the_realism_report_of_real_runs(tmp_path: Path) -> None
     assert not list((out / "realism").glob(".*"))  # the episodes' FCDs are gone
 
 
+@pytest.mark.sumo
 def test_no_realism_records_nothing(tmp_path: Path) -> None:
     out = tmp_path / "eval"
     result = CliRunner().invoke(app, [

@@ -73,6 +73,7 @@ def test_fcd_options_name_sumo_attributes(tmp_path: Path) -> None:
         fcd_options(tmp_path / "f.json", geo=False)
 
 
+@pytest.mark.sumo
 def test_three_formats_read_the_same(run: Path) -> None:
     xml, csv, parquet = (read_fcd(run / f"run.{ext}") for ext in ("xml", "csv", "parquet"))
     assert list(xml.columns[:13]) == [
@@ -89,6 +90,7 @@ def test_three_formats_read_the_same(run: Path) -> None:
     pd.testing.assert_frame_equal(xml, parquet, check_exact=False, atol=0.006)
 
 
+@pytest.mark.sumo
 def test_xml_validates_against_sumo_schema(run: Path) -> None:
     validate_fcd_xml(run / "run.xml")
     validate_fcd_xml(run / "geo.xml")
@@ -98,6 +100,7 @@ def test_xml_validates_against_sumo_schema(run: Path) -> None:
         validate_fcd_xml(bad)
 
 
+@pytest.mark.sumo
 def test_geo_output_has_lon_lat(run: Path) -> None:
     for name in ("geo.xml", "geo.csv"):
         df = read_fcd(run / name, geo=True)
@@ -106,6 +109,7 @@ def test_geo_output_has_lon_lat(run: Path) -> None:
         assert df["lon"].between(4.4, 4.6).all() and df["lat"].abs().max() < 0.001
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("source", ["run.xml", "run.parquet", "geo.xml"])
 def test_every_export_format_parses(run: Path, tmp_path: Path, source: str) -> None:
     for fmt in EXPORT_FORMATS:
@@ -141,6 +145,7 @@ def _check_export(fmt: str, written: list[Path]) -> None:
             assert min(lons) > 4.4 and max(lons) < 4.6
 
 
+@pytest.mark.sumo
 def test_not_fcd_is_refused(run: Path, tmp_path: Path) -> None:
     files = {
         "random.xml": "hello, not xml",
@@ -161,6 +166,7 @@ def test_not_fcd_is_refused(run: Path, tmp_path: Path) -> None:
     assert not list(out.iterdir())
 
 
+@pytest.mark.sumo
 def test_bad_requests_are_refused(run: Path, tmp_path: Path) -> None:
     fcd = run / "run.xml"
     with pytest.raises(BehaveError, match=r"unknown export format 'vissim'.*ns2.*omnet"):
@@ -173,12 +179,14 @@ def test_bad_requests_are_refused(run: Path, tmp_path: Path) -> None:
         export_fcd(fcd, "gpx", net=None, out=tmp_path / "t.gpx")
 
 
+@pytest.mark.sumo
 def test_missing_output_directories_are_created(run: Path, tmp_path: Path) -> None:
     out = tmp_path / "traces" / "deeper" / "mobility.tcl"
     written = export_fcd(run / "run.xml", "ns2", net=None, out=out)
     assert out in written and out.stat().st_size > 0
 
 
+@pytest.mark.sumo
 def test_unwritable_output_dir_is_refused(run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     locked = tmp_path / "locked"
     locked.mkdir(mode=0o500)
@@ -193,6 +201,7 @@ def test_unwritable_output_dir_is_refused(run: Path, tmp_path: Path, monkeypatch
     assert not list(locked.iterdir())
 
 
+@pytest.mark.sumo
 def test_plot_writes_png(run: Path, tmp_path: Path) -> None:
     out = tmp_path / "trace.png"
     plot_fcd(read_fcd(run / "run.parquet"), out, title="test", lane_width=3.5)
@@ -200,6 +209,7 @@ def test_plot_writes_png(run: Path, tmp_path: Path) -> None:
     assert [p.name for p in tmp_path.iterdir()] == ["trace.png"]
 
 
+@pytest.mark.sumo
 def test_plot_uses_the_net_lane_widths(run: Path, tmp_path: Path) -> None:
     out = tmp_path / "trace.png"
     df = read_fcd(run / "run.xml")

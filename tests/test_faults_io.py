@@ -16,6 +16,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
+from helpers import BEHAVE, behave
 
 from behaviors.cli.main import main
 from behaviors.ddpg.checkpoint import save_checkpoint
@@ -29,16 +30,11 @@ from sumo_scenarios import get_scenario
 
 HIGHWAY = get_scenario("highway").net
 TINY = get_scenario("tiny").net
-BEHAVE = [sys.executable, "-m", "behaviors.cli"]
 META = {
     "algorithm": "ps-ddpg", "behaviour": "multi", "behaviours": ["multi"], "obs_dim": 66,
     "observation_layout": "test", "normalisation": "test", "hidden": [256, 256], "training_steps": 0,
 }  # fmt: skip
 GPX = "{http://www.topografix.com/GPX/1/0}trkpt"
-
-
-def run_behave(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*BEHAVE, *args], capture_output=True, text=True, timeout=timeout)
 
 
 def one_error_line(stderr: str) -> str:
@@ -72,17 +68,19 @@ def full_disk(tmp_path: Path):
 # 1. full disk ---------------------------------------------------------------------------------
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("suffix", [".csv", ".parquet", ".xml"])
 def test_full_disk_fails_populate_keeps_the_old_file_and_leaves_no_temp(full_disk: Path, suffix: str):
     out = full_disk / f"out{suffix}"
     out.write_text("good\n")
-    done = run_behave("populate", "--duration", "60", "--fcd", str(out))
+    done = behave("populate", "--duration", "60", "--fcd", str(out))
     assert done.returncode != 0
     assert "not written" in one_error_line(done.stderr)
     assert out.read_text() == "good\n"
     assert hidden(full_disk) == []
 
 
+@pytest.mark.sumo
 def test_full_disk_fails_every_other_writer_in_one_error(full_disk: Path, tmp_path: Path):
     fcd = tmp_path / "fcd.csv"
     populate(PopulateConfig(duration=4, fcd=fcd))
@@ -117,6 +115,7 @@ def geo_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return runs
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("suffix", [".xml", ".csv", ".parquet"])
 def test_geo_fcd_round_trips_into_every_format(geo_runs: dict[str, Path], tmp_path: Path, suffix: str):
     fcd = geo_runs[suffix]
@@ -144,6 +143,7 @@ def test_geo_on_a_net_without_projection_is_refused_before_running(tmp_path: Pat
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.sumo
 def test_export_reads_a_gzipped_net(geo_runs: dict[str, Path], tmp_path: Path):
     metric = tmp_path / "m.csv"
     populate(PopulateConfig(duration=3, fcd=metric, background=2))
@@ -167,6 +167,7 @@ MALFORMED = """<routes>
 </routes>"""
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize(
     ("text", "named"),
     [
@@ -215,17 +216,18 @@ def test_numeric_options_are_checked_at_the_edge_in_one_line(
 # 6. output paths checked before SUMO starts ---------------------------------------------------
 
 
+@pytest.mark.sumo
 def test_output_paths_are_checked_before_anything_runs(tmp_path: Path):
     directory = tmp_path / "taken.xml"
     directory.mkdir()
     with pytest.raises(BehaveError, match="it is a directory"):
         populate(PopulateConfig(duration=2, fcd=directory))
     fcd = tmp_path / "fcd.xml"
-    done = run_behave("populate", "--duration", "2", "--fcd", str(fcd), "--plot", str(directory))
+    done = behave("populate", "--duration", "2", "--fcd", str(fcd), "--plot", str(directory))
     assert "it is a directory" in one_error_line(done.stderr)
     assert not fcd.exists()  # refused before SUMO ran, not after
     (directory.parent / "results.md").mkdir()
-    done = run_behave("evaluate", "--baseline", "sumo", "--agents", "1", "--out", str(directory.parent))
+    done = behave("evaluate", "--baseline", "sumo", "--agents", "1", "--out", str(directory.parent))
     assert "results.md: it is a directory" in one_error_line(done.stderr)
     assert not (directory.parent / "results.csv").exists()  # refused before the evaluation ran
     (tmp_path / "in.csv").write_text("timestep_time;vehicle_id\n0.00;a\n")
@@ -236,6 +238,7 @@ def test_output_paths_are_checked_before_anything_runs(tmp_path: Path):
 # 7. signals and stale temp files --------------------------------------------------------------
 
 
+@pytest.mark.sumo
 def test_sigterm_stops_populate_and_removes_its_temp_files(tmp_path: Path):
     out = tmp_path / "out.xml"
     process = subprocess.Popen([*BEHAVE, "populate", "--duration", "3600", "--fcd", str(out)],
@@ -250,6 +253,7 @@ def test_sigterm_stops_populate_and_removes_its_temp_files(tmp_path: Path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.sumo
 def test_stale_temp_files_of_dead_runs_are_removed_and_no_others(tmp_path: Path):
     dead = subprocess.Popen(["true"])
     dead.wait()

@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from helpers import BEHAVE, behave
 from pettingzoo.test import parallel_seed_test
 
 from behaviors import BehaveError, make_env
@@ -29,6 +30,7 @@ def hold_lane(obs: np.ndarray) -> np.ndarray:
     return np.stack([np.clip(-4 * angle, -1, 1), np.ones(len(obs)), np.zeros(len(obs))], 1).astype(np.float32)
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("scenario", ["tiny", "highway"])
 def test_the_last_agent_reaching_the_end_of_a_non_looping_road_ends_the_episode(scenario):
     env = make_env(scenario, agents=1, seed=1, max_steps=5000, start_speed=25.0)
@@ -113,6 +115,8 @@ def assert_same_run(rows: list[dict], actor: dict, uninterrupted) -> None:
         torch.testing.assert_close(actor[key], value, rtol=0, atol=0)
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 @pytest.mark.parametrize("target", [0, 1])
 def test_a_run_stopped_mid_episode_by_sigterm_resumes_exactly_like_an_uninterrupted_run(
     tmp_path, uninterrupted, target
@@ -135,6 +139,8 @@ def test_a_run_stopped_mid_episode_by_sigterm_resumes_exactly_like_an_uninterrup
     assert len(pd.read_csv(out / "metrics.csv")) == TOTAL
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 def test_a_killed_run_resumes_from_its_last_finished_episode(tmp_path, uninterrupted):
     out = tmp_path / "run"
     config = {**CONFIG, "episodes": 1000}  # checkpoint_every 10: no numbered checkpoint before the kill
@@ -151,19 +157,15 @@ def test_a_killed_run_resumes_from_its_last_finished_episode(tmp_path, uninterru
     assert_same_run(trainer.run(), final_actor(out), uninterrupted)
 
 
-def behave(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    command = [sys.executable, "-m", "behaviors.cli", *args]
-    return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
-
-
 TINY_CLI = ["train", "lanekeeping", "--scenario", "tiny", "--agents", "2", "--hidden", "32,32",
             "--batch-size", "16"]  # fmt: skip
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize(("stop", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_interrupted_training_exits_non_zero_with_one_line_on_how_to_resume(tmp_path, stop, code):
     out = tmp_path / "run"
-    args = [sys.executable, "-m", "behaviors.cli", *TINY_CLI, "--max-steps", "60", "--out", str(out)]
+    args = [*BEHAVE, *TINY_CLI, "--max-steps", "60", "--out", str(out)]
     child = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_for(lambda: (out / "metrics.csv").exists())
@@ -176,6 +178,7 @@ def test_interrupted_training_exits_non_zero_with_one_line_on_how_to_resume(tmp_
     assert err.strip().splitlines()[-1].endswith(f"continue with: behave train lanekeeping --resume {out}")
 
 
+@pytest.mark.sumo
 def test_a_budget_of_0_minutes_leaves_a_run_that_resumes_to_its_stored_total(tmp_path):
     out = tmp_path / "run"
     budget = behave(*TINY_CLI, "--max-steps", "5", "--episodes", "2", "--max-minutes", "0", "--out", str(out))
@@ -189,6 +192,7 @@ def test_a_budget_of_0_minutes_leaves_a_run_that_resumes_to_its_stored_total(tmp
     assert len(pd.read_csv(out / "metrics.csv")) == 2
 
 
+@pytest.mark.sumo
 def test_zero_episodes_are_refused_in_one_line(tmp_path):
     done = behave(*TINY_CLI, "--max-steps", "5", "--episodes", "0", "--out", str(tmp_path / "run"))
     assert done.returncode == 2
@@ -215,6 +219,7 @@ def test_resume_reads_the_state_as_data_and_never_runs_code_in_it(tmp_path):
     assert not marker.exists()
 
 
+@pytest.mark.sumo
 def test_a_second_live_simulation_in_one_process_is_refused_until_the_first_is_closed():
     first, second = make_env("tiny", agents=1, seed=1), make_env("tiny", agents=1, seed=1)
     made = []
@@ -236,6 +241,7 @@ def test_a_second_live_simulation_in_one_process_is_refused_until_the_first_is_c
             env.close()
 
 
+@pytest.mark.sumo
 def test_envs_made_one_after_another_repeat_each_other_exactly():
     """What parallel_seed_test checks, with one live simulation at a time."""
     traces = []

@@ -90,6 +90,7 @@ def test_internal_lanes_and_partial_windows_are_left_out() -> None:
     assert cells.loc[0, "density"] == pytest.approx(5.0)
 
 
+@pytest.mark.sumo
 def test_report_draws_the_fundamental_diagram_of_a_real_populate_run(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -16,6 +16,7 @@ from behaviors.lanes import TRAFFIC_OBS_SIZE
 from behaviors.render import AGENT
 
 
+@pytest.mark.sumo
 def test_registered_env_passes_gymnasium_check_and_close_frees_sumo() -> None:
     """check_env on the registered id (seeded resets and steps deterministic, spaces honoured,
     fresh arrays each call); after close() another env can run SUMO in this process."""
@@ -30,6 +31,7 @@ def test_registered_env_passes_gymnasium_check_and_close_frees_sumo() -> None:
     other.close()
 
 
+@pytest.mark.sumo
 def test_rollout_to_the_time_limit_with_the_traffic_reward() -> None:
     """A seeded rollout on the training roads: observations in the space, reward = sum of the
     traffic terms in info, and the episode ends by the time limit at the latest."""
@@ -50,6 +52,7 @@ def test_rollout_to_the_time_limit_with_the_traffic_reward() -> None:
         env.close()
 
 
+@pytest.mark.sumo
 def test_rgb_array_shows_the_car() -> None:
     env = gymnasium.make(ENV_ID, scenario="ring", render_mode="rgb_array")
     try:
@@ -61,6 +64,7 @@ def test_rgb_array_shows_the_car() -> None:
         env.close()
 
 
+@pytest.mark.sumo
 def test_reset_redraws_when_no_car_fits_then_says_so() -> None:
     """Traffic too dense for the car to enter: every try is redrawn, then one clear error."""
     env = gymnasium.make(ENV_ID, scenario="ring")

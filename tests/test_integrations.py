@@ -99,6 +99,7 @@ def log_steps(monkeypatch: pytest.MonkeyPatch) -> list[tuple[int, int]]:
     return rows
 
 
+@pytest.mark.sumo
 def test_stepping_after_the_last_agent_left_returns_empty_dicts() -> None:
     """SuperSuit and RLlib step once more after every agent is done: five empty dicts, no error."""
     env = make_env("tiny", agents=1, max_steps=3, seed=0)
@@ -111,6 +112,7 @@ def test_stepping_after_the_last_agent_left_returns_empty_dicts() -> None:
         env.close()
 
 
+@pytest.mark.sumo
 def test_rgb_array_draws_the_road_and_the_agents() -> None:
     env = make_env("tiny", agents=2, max_steps=5, seed=0, render_mode="rgb_array")
     try:
@@ -126,6 +128,8 @@ def test_rgb_array_draws_the_road_and_the_agents() -> None:
         make_env("tiny", agents=1, render_mode="human")
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 def test_supersuit_black_death_and_sb3_td3_learn_through_agents_leaving_at_different_times(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -148,6 +152,7 @@ def test_supersuit_black_death_and_sb3_td3_learn_through_agents_leaving_at_diffe
     assert model.num_timesteps >= 300
 
 
+@pytest.mark.sumo
 def test_sb3_parallel_vec_env_seed_sets_the_next_episode() -> None:
     """`seed(s)` reaches the PettingZoo env's next reset: the same seed, the same first
     observations; another seed, others (the env was made with seed 0 for all three)."""
@@ -167,6 +172,8 @@ def test_sb3_parallel_vec_env_seed_sets_the_next_episode() -> None:
     assert not np.array_equal(firsts[0], firsts[2])
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 def test_td3_seed_0_on_sb3_parallel_vec_env_learns_the_same_twice() -> None:
     """`TD3(..., seed=0)` on SuperSuit's vector env crashed ("'ConcatVecEnv' object has no attribute
     'seed'"); on sb3_parallel_vec_env it runs, two runs learn the same weights and seed 1 others."""

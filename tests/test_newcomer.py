@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import behave
 from test_own_scenario import netconvert
 
 from behaviors.cli.policy import MODEL_CARD, model_card_lines
@@ -19,11 +20,6 @@ from behaviors.export import read_fcd
 from behaviors.populate import KEEPER_TYPE, OVERTAKER_TYPE
 
 ROOT = Path(__file__).resolve().parents[1]
-BEHAVE = str(Path(sys.executable).parent / "behave")
-
-
-def behave(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([BEHAVE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
 
 
 def one_line_error(result: subprocess.CompletedProcess[str]) -> str:
@@ -49,9 +45,9 @@ def test_make_run_installs_no_extras_and_make_test_installs_what_tests_use(tmp_p
 
 def test_version_and_policy_list(tmp_path: Path) -> None:
     version = re.search(r'^version = "([^"]+)"', (ROOT / "pyproject.toml").read_text(), re.MULTILINE)[1]
-    result = behave("--version", cwd=tmp_path)
+    result = behave("--version", cwd=tmp_path, installed=True)
     assert result.returncode == 0 and result.stdout.strip() == f"behave {version}"
-    listed = behave("policy", "list", cwd=tmp_path)
+    listed = behave("policy", "list", cwd=tmp_path, installed=True)
     assert listed.returncode == 0, listed.stderr
     for name in ("traffic", "lanekeeping", "overtaking", "multi"):
         assert f"│ {name} " in listed.stdout
@@ -70,18 +66,20 @@ def test_project_files() -> None:
     assert re.search(r'^behaviors = \[.*"py.typed"', (ROOT / "pyproject.toml").read_text(), re.MULTILINE)
 
 
+@pytest.mark.sumo
 def test_net_takes_a_scenario_name(tmp_path: Path) -> None:
     result = behave("populate", "--net", "tiny", "--duration", "4", "--keepers", "1", "--overtakers", "0",
-                    "--background", "2", "--fcd", "out/fcd.xml", cwd=tmp_path)  # fmt: skip
+                    "--background", "2", "--fcd", "out/fcd.xml", cwd=tmp_path, installed=True)  # fmt: skip
     assert result.returncode == 0, result.stderr
     assert "<timestep" in (tmp_path / "out" / "fcd.xml").read_text()  # the missing folder was created
     assert "tiny.net.xml" in result.stdout
 
 
+@pytest.mark.sumo
 def test_net_errors_are_one_line(tmp_path: Path) -> None:
-    sumocfg = one_line_error(behave("populate", "--net", "mine.sumocfg", cwd=tmp_path))
+    sumocfg = one_line_error(behave("populate", "--net", "mine.sumocfg", cwd=tmp_path, installed=True))
     assert "--sumocfg mine.sumocfg" in sumocfg
-    unknown = one_line_error(behave("report", "x.xml", "--net", "motorwy", cwd=tmp_path))
+    unknown = one_line_error(behave("report", "x.xml", "--net", "motorwy", cwd=tmp_path, installed=True))
     assert "motorway" in unknown and "no bundled scenario" in unknown
 
 
@@ -91,7 +89,9 @@ def test_report_out_unwritable_fails_before_reading_the_fcd(tmp_path: Path) -> N
     blocker = tmp_path / "a-file"
     blocker.write_text("")
     start = time.perf_counter()
-    error = one_line_error(behave("report", str(fcd), "--out", str(blocker / "report"), cwd=tmp_path))
+    error = one_line_error(
+        behave("report", str(fcd), "--out", str(blocker / "report"), cwd=tmp_path, installed=True)
+    )
     assert "a-file/report" in error and "cannot create output directory" in error
     assert time.perf_counter() - start < 60
 
@@ -118,11 +118,12 @@ def long_vehicles_scenario(tmp: Path) -> Path:
     return cfg
 
 
+@pytest.mark.sumo
 def test_share_leaves_vehicles_of_another_size_to_sumo_and_json_has_sumos_figures(tmp_path: Path) -> None:
     cfg = long_vehicles_scenario(tmp_path)
     fcd = tmp_path / "out" / "fcd.xml"
     result = behave("populate", "--sumocfg", str(cfg), "--share", "0.5", "--fcd", str(fcd), "--json",
-                    "--plot", str(tmp_path / "out" / "traces.png"), cwd=tmp_path)  # fmt: skip
+                    "--plot", str(tmp_path / "out" / "traces.png"), cwd=tmp_path, installed=True)  # fmt: skip
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
     assert summary["scenario_passenger_cars"] >= 20  # cars and 12 m vehicles alike have vClass passenger
@@ -137,6 +138,7 @@ def test_share_leaves_vehicles_of_another_size_to_sumo_and_json_has_sumos_figure
     assert set(trace.loc[trace["id"].isin(long_ids), "type"]) == {"long"}
 
 
+@pytest.mark.sumo
 def test_plot_titles_say_what_the_run_was(tmp_path: Path) -> None:
     from behaviors.cli.populate import plot_title
     from behaviors.populate import config_from

@@ -19,6 +19,8 @@ from behaviors.populate import config_from, populate
 from behaviors.realism import measure, read_lanes
 from sumo_scenarios.osm_like import build_osm_like
 
+pytestmark = pytest.mark.sumo
+
 DURATION = 100.0  # s: cars leaving in the first ~20 s reach the end of the exit ramp
 
 

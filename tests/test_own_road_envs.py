@@ -66,6 +66,7 @@ def drive(env: gymnasium.Env, seed: int) -> tuple[dict, int, bool]:
     return info, steps, truncated
 
 
+@pytest.mark.sumo
 def test_gym_env_drives_a_netconvert_net_among_sumo_cars(motorway: OsmLikeNet) -> None:
     """net=: the car enters on a multi-lane edge of the user's net among SUMO's cars and drives to
     the time limit."""
@@ -80,6 +81,7 @@ def test_gym_env_drives_a_netconvert_net_among_sumo_cars(motorway: OsmLikeNet) -
         env.close()
 
 
+@pytest.mark.sumo
 def test_gym_env_on_the_osm_motorway_of_the_sumo_wheel() -> None:
     net = a10kw()
     if net is None:
@@ -97,6 +99,7 @@ def test_gym_env_on_the_osm_motorway_of_the_sumo_wheel() -> None:
         env.close()
 
 
+@pytest.mark.sumo
 def test_pettingzoo_env_runs_a_sumocfg_with_its_own_traffic(motorway: OsmLikeNet) -> None:
     """sumocfg=: SUMO's cars are the scenario's own (its flows' ids), the env adds none."""
     env = make_env(driver="traffic", sumocfg=motorway.sumocfg, agents=3, max_steps=20, seed=2)
@@ -112,6 +115,7 @@ def test_pettingzoo_env_runs_a_sumocfg_with_its_own_traffic(motorway: OsmLikeNet
         env.close()
 
 
+@pytest.mark.sumo
 def test_the_envs_on_a_users_road_pass_the_library_checks(motorway: OsmLikeNet) -> None:
     """Gymnasium's check_env on net= (seeded resets and steps repeat, spaces honoured) and
     PettingZoo's parallel_api_test on sumocfg=."""
@@ -140,6 +144,7 @@ def multi_draws(net: Path, seed: int, episodes: int) -> list[tuple[str, float]]:
         env.close()
 
 
+@pytest.mark.sumo
 def test_multi_draws_the_behaviour_per_episode_from_the_seed(motorway: OsmLikeNet) -> None:
     first = multi_draws(motorway.net, seed=5, episodes=6)
     assert first == multi_draws(motorway.net, seed=5, episodes=6)
@@ -162,6 +167,7 @@ def episode_terms(net: Path, weights: dict[str, float] | None) -> dict[str, np.n
         env.close()
 
 
+@pytest.mark.sumo
 def test_reward_weights_scale_their_terms_and_the_default_is_unchanged(motorway: OsmLikeNet) -> None:
     default = episode_terms(motorway.net, None)
     ones = episode_terms(motorway.net, dict.fromkeys(TRAFFIC_TERM_NAMES, 1.0))
@@ -190,6 +196,7 @@ def test_bad_reward_weights_raise(settings: dict, message: str) -> None:
         make_env("tiny" if settings["driver"] == "paper" else "roads", **settings)
 
 
+@pytest.mark.sumo
 def test_paper_driver_takes_reward_weights_too() -> None:
     env = make_env("tiny", agents=2, max_steps=3, seed=0, reward_weights={"progress": 0.0})
     try:
@@ -200,6 +207,7 @@ def test_paper_driver_takes_reward_weights_too() -> None:
         env.close()
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize(
     "where", ["missing", "one_lane", "sumocfg_as_net", "missing_sumocfg", "both", "paper"]
 )
@@ -222,6 +230,8 @@ def test_bad_road_is_one_clear_error(tmp_path: Path, motorway: OsmLikeNet, where
         gymnasium.make(ENV_ID, **settings) if where != "paper" else make_env(**settings)
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 def test_sb3_learns_from_a_seeded_vec_env_of_the_gym_env(motorway: OsmLikeNet) -> None:
     """Two envs (each in its own process: libsumo runs one simulation per process), a few hundred
     steps of PPO."""

@@ -109,6 +109,7 @@ def test_share_draws_are_uniform_and_fixed_by_seed_and_id():
     assert share_draw(7, "car0.1") == share_draw(7, "car0.1") != share_draw(8, "car0.1")
 
 
+@pytest.mark.sumo
 def test_a_zero_share_run_is_row_identical_to_plain_sumo(tmp_path):
     cfg = roads_scenario(tmp_path, roads=2, end=60.0)
     ours = run_share(tmp_path, cfg, 0.0, seed=3)
@@ -125,6 +126,7 @@ def shared_run(tmp_path_factory) -> pd.DataFrame:
     return run_share(tmp, cfg, 0.2)
 
 
+@pytest.mark.sumo
 def test_the_share_of_passenger_cars_that_become_agents_is_right(shared_run):
     fcd = shared_run
     agents = set(fcd.loc[fcd["type"].isin(AGENT_TYPES), "id"])
@@ -134,6 +136,7 @@ def test_the_share_of_passenger_cars_that_become_agents_is_right(shared_run):
     assert set(fcd["type"]) >= AGENT_TYPES  # keepers and overtakers both
 
 
+@pytest.mark.sumo
 def test_cars_on_roads_without_agents_drive_exactly_as_in_plain_sumo(tmp_path):
     """SUMO's cars that never meet an agent keep their every row: converting other cars draws on
     no random stream they use. Sparse flows leave some roads without agents."""
@@ -148,6 +151,7 @@ def test_cars_on_roads_without_agents_drive_exactly_as_in_plain_sumo(tmp_path):
     pd.testing.assert_frame_equal(ours, theirs)
 
 
+@pytest.mark.sumo
 def test_a_sumocfg_asking_for_the_ballistic_update_runs_with_it(tmp_path):
     """behave states the position update on SUMO's command line (its agents' vTypes would turn SUMO
     to the ballistic one by themselves), so it must pass on the sumocfg's own choice."""
@@ -166,6 +170,7 @@ def test_a_sumocfg_asking_for_the_ballistic_update_runs_with_it(tmp_path):
         read_sumocfg(cfg)
 
 
+@pytest.mark.sumo
 def test_sumocfg_options_hold_and_paths_resolve_against_its_folder(tmp_path):
     cfg = roads_scenario(tmp_path, roads=1, end=90.0)
     scenario = read_sumocfg(cfg)
@@ -177,6 +182,7 @@ def test_sumocfg_options_hold_and_paths_resolve_against_its_folder(tmp_path):
     assert config_from(cfg, step_length=0.2, duration=10.0).step_length == 0.2
 
 
+@pytest.mark.sumo
 def test_sumocfg_times_in_sumos_clock_format_are_read_as_sumo_reads_them(tmp_path):
     cfg = roads_scenario(tmp_path, roads=1, end=90.0)
     text = cfg.read_text()
@@ -218,6 +224,7 @@ def bad_scenario_input(tmp: Path) -> list[tuple[dict, str]]:
     ]
 
 
+@pytest.mark.sumo
 def test_bad_scenario_input_is_refused_before_anything_runs(tmp_path):
     for given, message in bad_scenario_input(tmp_path):
         with pytest.raises(BehaveError, match=re.escape(message)):
@@ -225,6 +232,7 @@ def test_bad_scenario_input_is_refused_before_anything_runs(tmp_path):
         assert not (tmp_path / "o.xml").exists()
 
 
+@pytest.mark.sumo
 def test_the_cli_says_one_line_after_its_set_up_lines_without_traceback(tmp_path):
     cfg = roads_scenario(tmp_path, roads=1, end=30.0)
     out = subprocess.run(
@@ -257,6 +265,7 @@ def test_geometry_is_cached_beside_a_big_net_and_rebuilt_when_the_net_changes(tm
     assert any("reading network" in s for s in said)
 
 
+@pytest.mark.sumo
 def test_only_car_lanes_count_and_borders_only_along_multi_lane_car_edges(tmp_path):
     """A street with one car lane and a sidewalk is a one-lane road; the sidewalk is no lane."""
     nodes = '<node id="a" x="0" y="0"/><node id="b" x="300" y="0"/><node id="c" x="600" y="0"/>'
@@ -287,6 +296,7 @@ def signal_net(tmp: Path) -> Path:
     return netconvert(tmp, "sig", nodes, edges, "--tllogic-files", str(tmp / "red.tll.xml"))
 
 
+@pytest.mark.sumo
 def test_an_agent_stops_at_a_red_light_instead_of_entering_the_junction(tmp_path):
     """Without the handover the policy (here: full throttle) drives through the red at speed."""
     net = signal_net(tmp_path)
@@ -308,6 +318,7 @@ def test_an_agent_stops_at_a_red_light_instead_of_entering_the_junction(tmp_path
         assert float(sim.read_speeds(["agent"])[0]) < 0.1  # waiting at the line
 
 
+@pytest.mark.sumo
 def test_routes_add_to_the_scenarios_own_demand(tmp_path):
     cfg = roads_scenario(tmp_path, roads=1, end=20.0)
     extra = tmp_path / "extra.rou.xml"
@@ -324,6 +335,7 @@ def test_routes_add_to_the_scenarios_own_demand(tmp_path):
     )
 
 
+@pytest.mark.sumo
 def test_a_scenario_car_made_an_agent_moves_sideways_exactly_as_asked(tmp_path):
     """SUMO keeps the lane-change model a car departed with (the scenario's lcAccelLat 1, which
     smooths a sideways request); made an agent, the car moves as far as asked in one step."""

@@ -7,12 +7,16 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import pytest
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 from paper import plan_df
 
 from behaviors.env import EnvConfig
 from behaviors.policy import PRETRAINED
+
+pytestmark = pytest.mark.sumo
 
 
 def test_a_plan_of_a_bundled_policy_and_sumos_drivers_runs(tmp_path: Path) -> None:

@@ -52,6 +52,7 @@ def test_the_bundled_policies_are_the_four_of_the_model_card():
                      "overtaking": ("paper", "overtaking"), "traffic": ("traffic", "multi")}  # fmt: skip
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("name", BUNDLED)
 @pytest.mark.parametrize("as_path", [False, True], ids=["by-name", "by-path"])
 def test_evaluate_runs_every_bundled_policy(tmp_path, name, as_path):
@@ -64,6 +65,7 @@ def test_evaluate_runs_every_bundled_policy(tmp_path, name, as_path):
     assert list(table["policy"]) == [name] and (table["steps"] <= 10).all()
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("name", BUNDLED)
 def test_populate_runs_every_bundled_policy(tmp_path, name):
     fcd = tmp_path / "fcd.xml"
@@ -72,6 +74,7 @@ def test_populate_runs_every_bundled_policy(tmp_path, name):
     assert len(pd.read_csv(tmp_path / "fcd.agents.csv")) >= 2 and fcd.is_file()
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("name", BUNDLED)
 def test_a_sweep_point_runs_every_bundled_policy(name):
     """The sweep's own checks and one of its runs, in this process (the Ray workers run the same)."""
@@ -95,6 +98,7 @@ def train_options(policy: Policy) -> list[str]:
     return [policy.behaviour, "--scenario", "tiny", *agents.get(policy.behaviour, ["--agents", "1"])]
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("name", BUNDLED)
 def test_train_starts_from_every_bundled_policy(tmp_path, name):
     """`--init NAME`: before its first update the new run's policy is the bundled one."""
@@ -115,6 +119,7 @@ def traffic_run(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.sumo
 def test_a_traffic_training_run_names_its_driver_and_drives_evaluate_and_populate(tmp_path, traffic_run):
     assert load_checkpoint(traffic_run / "checkpoints" / "final.pt").meta["driver"] == "traffic"
     policy = load_policy(traffic_run)

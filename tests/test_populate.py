@@ -73,6 +73,7 @@ def multi_policy(tmp_path_factory) -> Path:
     return policy_file(tmp_path_factory.mktemp("policy"), 66, "multi")
 
 
+@pytest.mark.sumo
 def test_populate_the_bundled_highway_writes_valid_fcd_with_both_behaviours(tmp_path, multi_policy):
     fcd = tmp_path / "out" / "fcd.xml"
     summary = populate(PopulateConfig(policy=multi_policy, overtakers=3, keepers=3, background=10,
@@ -85,6 +86,7 @@ def test_populate_the_bundled_highway_writes_valid_fcd_with_both_behaviours(tmp_
     assert not [p for p in fcd.parent.iterdir() if p.name.startswith(".")]  # no temp files left
 
 
+@pytest.mark.sumo
 def test_the_same_seed_gives_byte_identical_fcd(tmp_path, multi_policy):
     runs = []
     for name in ("a", "b"):
@@ -99,6 +101,7 @@ def test_the_same_seed_gives_byte_identical_fcd(tmp_path, multi_policy):
     assert other.read_bytes() != runs[0]
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])
 def test_fcd_in_csv_and_parquet(tmp_path, multi_policy, suffix):
     fcd = tmp_path / f"fcd{suffix}"
@@ -109,6 +112,7 @@ def test_fcd_in_csv_and_parquet(tmp_path, multi_policy, suffix):
     assert {"behave_keeper", "behave_overtaker"} <= set(df["type"])
 
 
+@pytest.mark.sumo
 def test_agents_on_a_curved_four_lane_net_never_take_the_single_lane_ramp(tmp_path, multi_policy):
     net = curved_net(tmp_path)
     fcd = tmp_path / "fcd.xml"
@@ -123,6 +127,7 @@ def test_agents_on_a_curved_four_lane_net_never_take_the_single_lane_ramp(tmp_pa
     assert summary.vehicles >= 12
 
 
+@pytest.mark.sumo
 def test_keep_count_reinserts_agents_that_leave(tmp_path, multi_policy):
     base = {"policy": multi_policy, "overtakers": 2, "keepers": 2, "background": 0, "duration": 150.0}
     kept = populate(PopulateConfig(**base, fcd=tmp_path / "k.xml", keep_count=True))
@@ -133,6 +138,7 @@ def test_keep_count_reinserts_agents_that_leave(tmp_path, multi_policy):
     assert kept.agent_steps >= 0.9 * 4 * steps
 
 
+@pytest.mark.sumo
 def test_a_lanekeeping_policy_drives_keepers_only(tmp_path):
     lanekeeping = policy_file(tmp_path, 65, "lanekeeping")
     fcd = tmp_path / "fcd.xml"
@@ -174,6 +180,7 @@ def bad_inputs(tmp: Path, policy: Path) -> list[tuple[dict, str]]:
     ]
 
 
+@pytest.mark.sumo
 def test_bad_input_gives_a_clear_error_and_no_output(tmp_path, multi_policy):
     for overrides, message in bad_inputs(tmp_path, multi_policy):
         fcd = overrides.pop("fcd", tmp_path / "out" / "fcd.xml")
@@ -185,6 +192,7 @@ def test_bad_input_gives_a_clear_error_and_no_output(tmp_path, multi_policy):
         assert not out.exists() or not list(out.iterdir())
 
 
+@pytest.mark.sumo
 def test_cli_errors_are_one_line_on_stderr_without_traceback(tmp_path):
     result = subprocess.run(
         [sys.executable, "-m", "behaviors.cli", "populate", "--net", str(tmp_path / "missing.net.xml"),
@@ -208,6 +216,7 @@ def test_bundled_policies_load_and_match_their_behaviours():
     assert (PRETRAINED / "MODEL_CARD.md").read_text().count("\n## ") == 4
 
 
+@pytest.mark.sumo
 def test_own_routes_file_brings_sumo_traffic(tmp_path, multi_policy):
     routes = tmp_path / "demand.rou.xml"
     edges = " ".join(f"e{i}" for i in range(10))
@@ -242,6 +251,7 @@ def highway_observations(steps: int = 40) -> np.ndarray:
     return np.concatenate(seen)
 
 
+@pytest.mark.sumo
 def test_bfloat16_actions_stay_close_to_float32():
     """Measured on 1,100 real observations: steer differs by 0.003 (median), 0.03 (99%), 0.06 (max)."""
     obs = highway_observations()
@@ -259,6 +269,7 @@ def test_auto_precision_uses_bfloat16_only_for_big_fleets():
     assert use_bfloat16("bfloat16", 1)
 
 
+@pytest.mark.sumo
 def test_the_shield_removes_most_crashes_on_a_crowded_highway(tmp_path):
     """The paper's multi policy keeps full throttle behind slower cars and drifts sideways: without
     the shield it crashes on a crowded road (the traffic driver's rules leave the shield little to do)."""
@@ -283,6 +294,7 @@ def steering_policy(tmp: Path, steer: float) -> Path:
     return path
 
 
+@pytest.mark.sumo
 def test_every_collision_and_off_track_is_explained_in_the_agents_table(tmp_path):
     """Keepers that all steer left, unshielded, among as many of SUMO's cars (a crowded road: populate
     puts no car down beside another): those in the left lane leave the road by its left edge, some
@@ -309,6 +321,7 @@ def test_every_collision_and_off_track_is_explained_in_the_agents_table(tmp_path
     assert quiet[list(INCIDENT_COLUMNS)].isna().all().all()
 
 
+@pytest.mark.sumo
 def test_no_agent_is_put_down_in_a_lane_that_ends_before_it_could_merge_out(tmp_path):
     """A lane drop (4 -> 3 lanes after 800 m): no car, learned or SUMO's, starts in the right lane's
     last INSERT_LANE_RUN metres (one put at the end of a dropping lane stood there and the lane queued),

@@ -83,6 +83,7 @@ def read_agents(path: Path) -> tuple[list[str], list[dict[str, str]]]:
         return list(reader.fieldnames or []), list(reader)
 
 
+@pytest.mark.sumo
 def test_agents_stuck_behind_stopped_cars_are_reported_with_sumos_speeds(tmp_path):
     net, routes = blocked_road(tmp_path)
     fcd = tmp_path / "out" / "run.xml"
@@ -120,6 +121,7 @@ def test_an_agent_ends_by_the_first_thing_that_happened_to_it():
     assert reasons.tolist() == ["collision", "off_track", "arrived", "no_progress", "", "collision"]
 
 
+@pytest.mark.sumo
 def test_routes_use_only_car_lanes_and_the_connections_cars_may_take(tmp_path):
     net = bus_town(tmp_path)
     graph = route_graph(load_geometry(net))
@@ -133,6 +135,7 @@ def test_routes_use_only_car_lanes_and_the_connections_cars_may_take(tmp_path):
     assert summary.vehicles == 12
 
 
+@pytest.mark.sumo
 def test_repeated_insertions_reuse_sumos_routes(tmp_path):
     import libsumo
 
@@ -154,6 +157,7 @@ def test_repeated_insertions_reuse_sumos_routes(tmp_path):
     assert counts[-1] <= ROUTE_VARIANTS * len(population.graph.edges)
 
 
+@pytest.mark.sumo
 def test_cli_prints_how_the_agents_ended(tmp_path):
     fcd = tmp_path / "fcd.xml"
     result = subprocess.run(

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 from behaviors.ddpg.checkpoint import load_checkpoint
@@ -31,6 +32,8 @@ def weights(checkpoint: Path) -> dict[str, torch.Tensor]:
     return {f"{net}.{key}": value for net, params in nets.items() for key, value in params.items()}
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 def test_the_traffic_recipe_starts_from_its_bundled_checkpoint_and_repeats_weight_for_weight(tmp_path):
     command = make_pretrained.traffic_command(tmp_path, 150.0)
     assert make_pretrained.TRAFFIC_START.is_file()

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import behave
 
 from behaviors.cli.main import main
 from behaviors.errors import BehaveError
@@ -193,6 +194,7 @@ def build_net(root: Path, lefthand: bool) -> Path:
     return net
 
 
+@pytest.mark.sumo
 def test_net_lanes_widths_car_ranks_and_handedness(tmp_path: Path) -> None:
     for lefthand in (False, True):
         lanes = read_lanes(build_net(tmp_path, lefthand))
@@ -236,11 +238,6 @@ def test_losses_per_agent_hour() -> None:
     assert table.loc["keepers", "agents_standing"] == 1
 
 
-def behave(*args: str) -> subprocess.CompletedProcess[str]:
-    command = [sys.executable, "-m", "behaviors.cli", *args]
-    return subprocess.run(command, capture_output=True, text=True, check=False)
-
-
 def report(
     args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> tuple[int, str, str]:
@@ -261,6 +258,7 @@ def populated(folder: Path) -> Path:
     return fcd
 
 
+@pytest.mark.sumo
 def test_report_on_a_real_populate_run(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

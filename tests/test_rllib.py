@@ -15,6 +15,8 @@ from ray.rllib.env.multi_agent_env_runner import MultiAgentEnvRunner
 from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 from ray.tune.registry import register_env
 
+pytestmark = pytest.mark.sumo
+
 STEER = {"agent_0": 1.0, "agent_1": -0.08, "agent_2": 0.0}
 """Hard right: off the road at step 2; slightly left: off the road at step 7; straight on."""
 LAST_STEP = 7
@@ -71,6 +73,7 @@ def test_rllib_samples_episodes_where_agents_leave_apart_and_the_last_two_for_di
         assert agents["agent_2"].get_infos(-1)["off_track"] == 0.0
 
 
+@pytest.mark.train
 def test_rllib_ppo_trains_an_iteration_through_those_episode_ends() -> None:
     """One PPO iteration (32 environment steps, 4+ episodes that end as above) samples and updates
     the shared module."""

@@ -24,6 +24,8 @@ from behaviors.populate import PopulateConfig, config_from, populate
 from behaviors.sensors import OBS_SIZE_WITH_ID
 from sumo_scenarios.osm_like import Demand, build_osm_like
 
+pytestmark = pytest.mark.sumo
+
 HIDDEN = (4, 4)
 
 

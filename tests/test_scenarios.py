@@ -121,6 +121,7 @@ def test_ring_curves_have_a_200_m_radius_and_dense_points() -> None:
         assert edge.getLength() / (len(centre) - 1) < 3.5
 
 
+@pytest.mark.sumo
 def test_highway_has_a_utm_projection() -> None:
     scenario = get_scenario("highway")
     net = read_net(scenario)
@@ -131,6 +132,7 @@ def test_highway_has_a_utm_projection() -> None:
     assert (lon, lat) == (pytest.approx(11.5545, abs=1e-3), pytest.approx(48.1488, abs=1e-3))
 
 
+@pytest.mark.sumo
 def test_highway_fcd_distance_is_the_road_position(tmp_path) -> None:
     """Edges carry kilometrage 0, 300, ..., so FCD `distance` runs on across edges and junctions."""
     scenario = get_scenario("highway")
@@ -155,6 +157,7 @@ def test_highway_fcd_distance_is_the_road_position(tmp_path) -> None:
         assert offset == pytest.approx(start, abs=0.1 * 9 + 0.02)
 
 
+@pytest.mark.sumo
 def test_build_reproduces_the_shipped_networks(tmp_path) -> None:
     built = build_scenarios(tmp_path)
     roads = training_roads(ramps=True)
@@ -169,6 +172,7 @@ def test_the_shipped_vtypes_are_the_ones_the_build_writes(tmp_path) -> None:
     assert shared_vtypes(tmp_path / "road").read_bytes() == shipped.read_bytes()
 
 
+@pytest.mark.sumo
 def test_the_ramp_roads_have_cars_joining_and_leaving_and_only_the_wider_family_has_them() -> None:
     plain, wide = training_roads(), training_roads(ramps=True)
     assert len(plain) == 5 and len(wide) == 7 and [r.name for r in wide[:5]] == [r.name for r in plain]
@@ -180,6 +184,7 @@ def test_the_ramp_roads_have_cars_joining_and_leaving_and_only_the_wider_family_
     assert {"ramp_in", "ramp_out"} <= seen
 
 
+@pytest.mark.sumo
 def test_the_motorway_has_a_ramp_a_weave_and_an_exit_that_cars_use() -> None:
     net = read_net(get_scenario("motorway"))
     lanes = {e.getID(): e.getLaneNumber() for e in net.getEdges() if e.getFunction() == ""}
@@ -195,6 +200,7 @@ def test_the_motorway_has_a_ramp_a_weave_and_an_exit_that_cars_use() -> None:
     assert {"m1", "m2", "m3", "r0", "x0"} <= seen
 
 
+@pytest.mark.sumo
 def test_build_ring_scales_for_benchmarks(tmp_path) -> None:
     scenario = build_ring(tmp_path / "big", name="big", straight=4000.0, lanes=4)
     info = scenario_info(scenario)
@@ -202,6 +208,7 @@ def test_build_ring_scales_for_benchmarks(tmp_path) -> None:
     assert info.length_m == pytest.approx(8000 + 2 * math.pi * 200, rel=0.01)
 
 
+@pytest.mark.sumo
 def test_ring_cars_circle_without_teleports() -> None:
     scenario = get_scenario("ring")
     lap = scenario_info(scenario).length_m
@@ -222,6 +229,7 @@ def test_ring_cars_circle_without_teleports() -> None:
         assert [sim.vehicle.getSpeed(v) for v in sim.vehicle.getIDList()] == pytest.approx([33.33] * 3)
 
 
+@pytest.mark.sumo
 def test_change_sublane_moves_exactly_the_requested_metres() -> None:
     with simulation(get_scenario("tiny")) as sim:
         sim.vehicle.add("a", "main", typeID="behave_overtaker", departLane="0", departSpeed="20")
@@ -257,6 +265,7 @@ def test_unknown_scenario_names_the_choices() -> None:
         get_scenario("nope")
 
 
+@pytest.mark.sumo
 def test_cli_lists_and_builds(tmp_path) -> None:
     from typer.testing import CliRunner
 
@@ -270,6 +279,7 @@ def test_cli_lists_and_builds(tmp_path) -> None:
     assert (tmp_path / "ring" / "ring.net.xml").exists()
 
 
+@pytest.mark.sumo
 def test_netconvert_failure_is_a_behave_error(tmp_path) -> None:
     with pytest.raises(BehaveError, match="needs at least one lane"):
         build_ring(tmp_path, lanes=0)

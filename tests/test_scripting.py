@@ -10,24 +10,17 @@ import re
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
+from helpers import BEHAVE, behave
 
 from behaviors.cli.progress import ProgressLines, line_due, verbosity
 from behaviors.errors import BehaveError
 from behaviors.export import read_fcd, validate_fcd_xml
 from behaviors.interrupt import sigint_between_steps
 from behaviors.sim import SimOptions, display_missing
-
-BEHAVE = [sys.executable, "-m", "behaviors.cli"]
-
-
-def behave(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*BEHAVE, *args], capture_output=True, text=True, timeout=300, env=env)
-
 
 # -q / -v and progress lines ---------------------------------------------------------------------
 
@@ -60,6 +53,7 @@ def test_progress_lines_of_a_run():
     )
 
 
+@pytest.mark.sumo
 def test_populate_in_a_log_prints_progress_lines_and_the_summary(tmp_path: Path):
     done = behave("populate", "--duration", "10", "--fcd", str(tmp_path / "fcd.xml"))
     assert done.returncode == 0, done.stderr
@@ -70,6 +64,7 @@ def test_populate_in_a_log_prints_progress_lines_and_the_summary(tmp_path: Path)
     assert "phase " not in done.stderr
 
 
+@pytest.mark.sumo
 def test_quiet_populate_prints_nothing_but_json_if_asked(tmp_path: Path):
     done = behave("populate", "--duration", "4", "--fcd", str(tmp_path / "a.xml"), "-q")
     assert done.returncode == 0, done.stderr
@@ -81,6 +76,7 @@ def test_quiet_populate_prints_nothing_but_json_if_asked(tmp_path: Path):
     assert summary["simulated_s"] == pytest.approx(4.0) and summary["cut_short"] is False
 
 
+@pytest.mark.sumo
 def test_verbose_populate_shows_phase_timings(tmp_path: Path):
     done = behave("populate", "--duration", "4", "--fcd", str(tmp_path / "a.xml"), "-v")
     assert done.returncode == 0, done.stderr
@@ -89,6 +85,7 @@ def test_verbose_populate_shows_phase_timings(tmp_path: Path):
     assert "-q/--quiet and -v/--verbose" in behave("populate", "-q", "-v").stderr
 
 
+@pytest.mark.sumo
 def test_train_in_a_log_prints_a_line_per_tenth_and_one_per_episode_with_v(tmp_path: Path):
     args = ("train", "lanekeeping", "--scenario", "tiny", "--agents", "1", "--episodes", "2",
             "--max-steps", "10", "--warmup", "5", "--batch-size", "4")  # fmt: skip
@@ -108,6 +105,7 @@ def test_train_in_a_log_prints_a_line_per_tenth_and_one_per_episode_with_v(tmp_p
     assert (tmp_path / "c" / "metrics.csv").is_file()
 
 
+@pytest.mark.sumo
 def test_quiet_evaluate_writes_its_files_and_prints_nothing(tmp_path: Path):
     args = ("evaluate", "lanekeeping", "--agents", "1", "--episodes", "1", "--max-steps", "20",
             "--scenario", "tiny", "--no-realism")  # fmt: skip
@@ -136,6 +134,7 @@ def test_sigint_is_held_until_the_step_ends_and_a_second_one_is_not():
     assert signal.getsignal(signal.SIGINT) is before
 
 
+@pytest.mark.sumo
 def test_ctrl_c_keeps_a_whole_fcd_up_to_the_last_step(tmp_path: Path):
     out = tmp_path / "fcd.xml"
     command = [*BEHAVE, "populate", "--duration", "3600", "--keep-count", "--fcd", str(out), "--json"]
@@ -165,6 +164,7 @@ def test_ctrl_c_keeps_a_whole_fcd_up_to_the_last_step(tmp_path: Path):
 # --gui -------------------------------------------------------------------------------------------
 
 
+@pytest.mark.sumo
 def test_gui_needs_a_display_except_on_windows():
     assert display_missing({}, "linux") is not None
     assert "DISPLAY" in (display_missing({"DISPLAY": ""}, "darwin") or "")
@@ -174,6 +174,7 @@ def test_gui_needs_a_display_except_on_windows():
     assert SimOptions(Path("n.net.xml")).command()[0].endswith("sumo")
 
 
+@pytest.mark.sumo
 def test_gui_without_a_display_stops_before_anything_runs(tmp_path: Path):
     env = {k: v for k, v in os.environ.items() if k != "DISPLAY"}
     done = behave("populate", "--gui", "--duration", "5", "--fcd", str(tmp_path / "fcd.xml"), env=env)
@@ -183,6 +184,7 @@ def test_gui_without_a_display_stops_before_anything_runs(tmp_path: Path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.sumo
 @pytest.mark.skipif(
     not os.environ.get("DISPLAY") and shutil.which("xvfb-run") is None, reason="no display and no xvfb-run"
 )

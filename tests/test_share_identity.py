@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from behaviors.agents_table import agents_path
 from behaviors.export import fcd_options, read_fcd
@@ -26,6 +27,8 @@ from behaviors.populate import config_from, populate
 from behaviors.sim import COLLISION_OPTIONS
 from behaviors.sumo_home import sumo_binary
 from sumo_scenarios.osm_like import Demand, build_osm_like
+
+pytestmark = pytest.mark.sumo
 
 INTERACTION_RANGE = 200.0  # m between front bumpers
 SEED = 2

@@ -144,6 +144,7 @@ def crash_course(shield: bool, steps: int = 100) -> tuple[set[str], float]:
         env.close()
 
 
+@pytest.mark.sumo
 def test_in_sumo_the_shield_prevents_the_crashes_the_bare_policy_makes():
     crashed, _ = crash_course(shield=False)
     assert "agent_2" in crashed  # without the shield the follower runs into the standing car
@@ -181,6 +182,7 @@ def squeeze(shield: bool, steps: int = 60) -> tuple[set[str], float]:
         env.close()
 
 
+@pytest.mark.sumo
 def test_in_sumo_the_shield_keeps_an_agent_from_steering_into_the_car_beside_it():
     crashed, _ = squeeze(shield=False)
     assert crashed == {"agent_0", "agent_1"}  # the bare command side-swipes

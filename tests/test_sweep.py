@@ -119,6 +119,7 @@ def swept(scenario, tmp_path_factory) -> Swept:
     return Swept(run_sweep(points, out, workers=2), out, alone.row, killed, before)
 
 
+@pytest.mark.sumo
 def test_the_grid_is_every_combination_once_in_a_fixed_order(scenario):
     grid = Grid(
         sumocfgs=(str(scenario), str(scenario)), shares=(0.5, 0.0, 0.5), seeds=(1, 0), policies=("a", "b")
@@ -153,6 +154,7 @@ def test_flow_figures_per_group_from_a_small_fcd():
     assert figures["agents_share_of_vehicles"] == 1 / 3
 
 
+@pytest.mark.sumo
 def test_a_sweep_of_3_shares_by_2_seeds_on_2_workers_ends_with_6_rows(swept):
     result, out = swept.result, swept.out
     table = result.table
@@ -173,6 +175,7 @@ def test_a_sweep_of_3_shares_by_2_seeds_on_2_workers_ends_with_6_rows(swept):
     assert len(list((out / "runs").iterdir())) == 6
 
 
+@pytest.mark.sumo
 def test_a_killed_sweep_started_again_runs_only_the_missing_points(swept):
     killed, result, out = swept.killed, swept.result, swept.out
     assert killed.returncode == 143, killed.stderr
@@ -194,6 +197,7 @@ def test_a_killed_sweep_started_again_runs_only_the_missing_points(swept):
     assert (quiet.returncode, quiet.stdout, quiet.stderr) == (0, "", "")
 
 
+@pytest.mark.sumo
 def test_the_share_0_rows_are_a_plain_sumo_runs_figures(swept, scenario, tmp_path):
     table = swept.result.table
     for seed in SEEDS:
@@ -210,6 +214,7 @@ def test_the_share_0_rows_are_a_plain_sumo_runs_figures(swept, scenario, tmp_pat
         assert not differences({k: row[k] for k in plain}, plain)
 
 
+@pytest.mark.sumo
 def test_a_point_run_alone_gives_the_row_it_got_on_a_worker(swept, tmp_path):
     table = swept.result.table
     row = table[(table["share"] == 0.5) & (table["seed"] == 1)].iloc[0]
@@ -234,6 +239,7 @@ def test_a_point_run_alone_gives_the_row_it_got_on_a_worker(swept, tmp_path):
     assert kept == [f"{point.id}.agents.csv", f"{point.id}.csv"]
 
 
+@pytest.mark.sumo
 def test_a_failed_run_is_a_row_with_its_error_and_the_others_go_on(scenario, tmp_path):
     """Through the command line: one scenario SUMO cannot load beside a good one."""
     bad = tmp_path / "bad"
@@ -260,6 +266,7 @@ def test_a_failed_run_is_a_row_with_its_error_and_the_others_go_on(scenario, tmp
     assert len(list((out / "fcd").glob("*.agents.csv"))) == 1  # --keep-fcd keeps the finished run's FCD
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -282,6 +289,7 @@ def test_bad_input_is_one_line_and_exit_2(scenario, tmp_path, args, message):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize(
     ("args", "message"),
     [

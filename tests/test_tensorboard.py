@@ -9,6 +9,8 @@ import pytest
 
 from behaviors.train import TrainConfig, prepare_run
 
+pytestmark = [pytest.mark.sumo, pytest.mark.train]
+
 event_accumulator = pytest.importorskip(
     "tensorboard.backend.event_processing.event_accumulator", reason="tensorboard is not installed"
 )

@@ -12,6 +12,8 @@ import torch
 from behaviors.ddpg.learner import DDPGLearner
 from behaviors.train import UPDATE_LOG_EVERY, TrainConfig, prepare_run
 
+pytestmark = [pytest.mark.sumo, pytest.mark.train]
+
 event_accumulator = pytest.importorskip(
     "tensorboard.backend.event_processing.event_accumulator", reason="tensorboard is not installed"
 )

@@ -13,6 +13,8 @@ from tensordict import TensorDictBase
 from torchrl.envs import PettingZooWrapper
 from torchrl.envs.utils import check_env_specs
 
+pytestmark = pytest.mark.sumo
+
 STEER = torch.tensor([1.0, -0.08, 0.0])
 """agent_0 hard right: off the road at step 2; agent_1 slightly left: off at step 7; agent_2 straight."""
 LAST_STEP = 7

@@ -26,6 +26,8 @@ def train(out: Path, resume: bool = False, **overrides) -> list[dict]:
     return trainer.run()
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 def test_a_short_run_writes_config_metrics_checkpoints_and_curve(tmp_path):
     rows = train(tmp_path / "run", episodes=3)
     run = tmp_path / "run"
@@ -66,6 +68,8 @@ def test_the_driver_gives_reward_scale_exploration_and_the_checkpoint_meta(tmp_p
     assert all(getattr(learner, name) == value for name, value in model.exploration.items())
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 def test_resume_continues_where_the_run_stopped_and_matches_an_uninterrupted_run(tmp_path):
     whole = train(tmp_path / "whole", episodes=4)
     train(tmp_path / "split", episodes=2)
@@ -83,6 +87,8 @@ def test_resume_continues_where_the_run_stopped_and_matches_an_uninterrupted_run
         torch.testing.assert_close(a[key], b[key])
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 def test_baselines_train_one_agent_alone_or_one_learner_per_agent(tmp_path):
     single = prepare_run(
         TrainConfig.from_options(**TINY, algo="ddpg", episodes=1), tmp_path / "ddpg", resume=False
@@ -97,6 +103,8 @@ def test_baselines_train_one_agent_alone_or_one_learner_per_agent(tmp_path):
     assert ckpt.meta["algorithm"] == "multi-ddpg" and len(ckpt.extra_state["actors"]) == 2
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 def test_curriculum_initialises_from_a_checkpoint_and_widens_to_the_behaviour_id(tmp_path):
     train(tmp_path / "lk", episodes=1)
     source = tmp_path / "lk" / "checkpoints" / "final.pt"
@@ -112,6 +120,8 @@ def test_curriculum_initialises_from_a_checkpoint_and_widens_to_the_behaviour_id
     trainer.env.close()
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 def test_bad_runs_fail_with_a_clear_message(tmp_path):
     train(tmp_path / "lk", episodes=1)
     with pytest.raises(BehaveError, match="already holds a run"):
@@ -130,6 +140,8 @@ def test_bad_runs_fail_with_a_clear_message(tmp_path):
         train(tmp_path / "y", init=str(multi_run / "checkpoints" / "final.pt"), episodes=1)
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 def test_sigterm_saves_a_checkpoint_and_the_state_to_resume(tmp_path):
     out = tmp_path / "run"
     code = (
@@ -163,6 +175,8 @@ FLAT_CONFIG = """{"actor_lr": 0.0001, "agents": 2, "algo": "ps-ddpg", "batch_siz
 """config.json as runs wrote it before TrainConfig held an EnvConfig and a DDPGConfig: one flat object."""
 
 
+@pytest.mark.sumo
+@pytest.mark.train
 def test_config_json_round_trips_and_a_run_written_flat_still_resumes(tmp_path):
     config = TrainConfig.from_options(**TINY, episodes=1)
     assert TrainConfig.from_json(config.to_json()) == config

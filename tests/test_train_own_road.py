@@ -5,27 +5,22 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
+from helpers import behave
 
 from behaviors.ddpg.checkpoint import load_checkpoint
 from sumo_scenarios.osm_like import Demand, OsmLikeNet, build_osm_like
+
+pytestmark = pytest.mark.sumo
 
 SMALL = ["train", "lanekeeping", "--driver", "traffic", "--agents", "2", "--max-steps", "30", "--hidden",
          "16,16", "--batch-size", "16", "--episodes", "1", "-q"]  # fmt: skip
 """Two agents, one 30-step episode; the default warmup (1000 transitions) means no update, so a
 run's driving depends on its seed alone, whatever its reward."""
 WEIGHTS = ["--reward-weight", "speed=3", "--reward-weight", "centre=0"]
-
-
-def behave(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "behaviors.cli", *args], capture_output=True, text=True, timeout=300
-    )
 
 
 def trained(out: Path, *args: str) -> Path:
