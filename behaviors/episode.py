@@ -27,6 +27,7 @@ def drive_episode(
     `stop()` held before a step (the caller drops the partial episode)."""
     assert env.sim is not None, "drive_episode drives an episode just reset"
     stats = EpisodeStats(env.config.n_agents, env.slot_behaviour.copy(), env.config.step_length, env.sim.time)
+    stats.place(env.live_slots)  # the slots whose car started (the traffic env may place fewer)
     while env.agents:
         if stop is not None and stop():
             return None

@@ -66,7 +66,8 @@ def evaluate(
             assert stats is not None  # nothing stops an evaluation's episode
             if fcd is not None:
                 runs = agent_runs(stats, env.possible_agents, label)
-                cells = ([*run.cells(), cell(float(r))] for run, r in zip(runs, stats.reward, strict=True))
+                rewards = stats.reward[stats.placed]
+                cells = ([*run.cells(), cell(float(r))] for run, r in zip(runs, rewards, strict=True))
                 atomic_write_text(agents_path(fcd), table_text("evaluate", cells))
             rows.append({"episode": episode, **summary(stats, limit, passed_fraction(env))})
     finally:
@@ -125,6 +126,8 @@ def plan_evaluation(
     baseline: str | None,
     opponents: int | None = None,
     shield: bool = False,
+    net: Path | None = None,
+    sumocfg: Path | None = None,
 ) -> EvaluationPlan:
     """Check every option against the policies before anything runs; BehaveError names the problem.
 
@@ -134,6 +137,8 @@ def plan_evaluation(
     `scenario`: None = where the driver trains (the paper's ring, the traffic driver's roads).
     `opponents`: slower passive cars ahead (see EnvConfig); `shield`: drive through populate's
     safety shield, to see a policy as `behave populate` drives it.
+    `net`/`sumocfg`: a user's road instead of `scenario` (drivers among traffic), as `behave train
+    --net/--sumocfg` trains on it: SUMO's cars at drawn densities, or the sumocfg's own traffic.
     """
     if not checkpoints and baseline is None:
         raise BehaveError("give at least one checkpoint (or --baseline sumo)")
@@ -155,9 +160,10 @@ def plan_evaluation(
     among_traffic = make_driver(driver).among_traffic
     if among_traffic:
         refuse_paper_options(driver, baseline, placements, opponents)
+    check_own_road(net, sumocfg, scenario, driver, among_traffic)
     home = TRAINING_ROADS if among_traffic else "ring"
     base = EnvConfig(scenario=scenario or home, driver=driver, behaviour=behaviour, max_steps=max_steps,
-                     opponents=opponents, shield=shield)  # fmt: skip
+                     opponents=opponents, shield=shield, net=net, sumocfg=sumocfg)  # fmt: skip
     if behaviour == "multi":
         settings = multi_settings(
             base, overtakers, keepers, None if among_traffic else placements or ["A", "B", "C"]
@@ -193,6 +199,33 @@ def refuse_paper_options(
             f"{' and '.join(given)} set the paper's formations; the {driver} driver's agents start at free "
             "places among SUMO's traffic"
         )
+
+
+def check_own_road(
+    net: Path | None, sumocfg: Path | None, scenario: str | None, driver: str, among_traffic: bool
+) -> None:
+    """--net/--sumocfg in the command's words: one road, no --scenario beside it, and policies that drive
+    among SUMO's traffic (EnvConfig says the same in Python's)."""
+    if net is None and sumocfg is None:
+        return
+    option = "--net" if net is not None else "--sumocfg"
+    if net is not None and sumocfg is not None:
+        raise BehaveError("--net and --sumocfg both name a network: the sumocfg's net is used, drop --net")
+    if scenario is not None:
+        raise BehaveError(f"--scenario and {option} both name a road: give one")
+    if not among_traffic:
+        raise BehaveError(f"{option} drives the policies among SUMO's traffic on your road: the {driver} "
+                          "driver's policies drive the bundled scenarios (--scenario)")  # fmt: skip
+
+
+def road_label(plan: EvaluationPlan) -> str:
+    """The road the plan's settings drive: the user's net or sumocfg (its file name), or the scenario."""
+    config = plan.settings[0][1]
+    own = config.sumocfg if config.sumocfg is not None else config.net
+    if own is not None:
+        return Path(own).name
+    scenario = config.scenario
+    return scenario.name if isinstance(scenario, Scenario) else str(scenario)
 
 
 def multi_settings(
@@ -375,13 +408,33 @@ def markdown_table(results: pd.DataFrame) -> str:
         "mean_speed_frac",
         "lane_deviation",
     ]
-    columns += [c for c in ("overtakes_per_agent", "passed_frac", "overtaker_speed_frac", "keeper_speed_frac")
-                if c in results]  # fmt: skip
+    columns += [c for c in ("overtakes_per_agent", "passed_frac", "overtaker_speed_frac", "keeper_speed_frac",
+                            "agents", "agents_placed") if c in results]  # fmt: skip
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     for _, row in results.iterrows():
         cells = [row[c] if isinstance(row[c], str) else f"{row[c]:,.2f}" for c in columns]
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def placed_text(row: Any) -> str:
+    """`8 of 8`, `1 of 8`, `4.5 of 8` (episodes averaged): the agents that started of those asked for."""
+    if "agents_placed" not in row or pd.isna(row["agents_placed"]):
+        return f"{row['agents']:g} of {row['agents']:g}"
+    return f"{round(float(row['agents_placed']), 2):g} of {row['agents']:g}"
+
+
+def short_placements(results: pd.DataFrame) -> list[str]:
+    """One line per setting where fewer agents started than it asked for, on average (the traffic env
+    puts agents down at free places: dense traffic on a short road leaves some slots out)."""
+    if "agents_placed" not in results:
+        return []
+    short = results[results["agents_placed"] < results["agents"] - 1e-9]
+    return [
+        f"{row['policy']}, {row['setting']}: {placed_text(row)} agents started per episode on average "
+        "(no free place for the others); per-agent figures count those that started"
+        for _, row in short.iterrows()
+    ]
 
 
 def plot_metrics(results: pd.DataFrame, path: Path) -> None:

@@ -22,7 +22,10 @@ import numpy as np
 
 from behaviors.env import ROAD_FAMILIES, TRAINING_ROADS, EnvConfig, make_env
 from behaviors.errors import BehaveError
+from behaviors.geometry import RoadGeometry
 from behaviors.render import RENDER_MODES
+from behaviors.routes import RouteGraph, route_graph
+from behaviors.sim import SumoSim
 from behaviors.traffic_env import NoRoomError, TrafficEnv
 
 ENV_ID = "behave/Traffic-v0"
@@ -34,7 +37,15 @@ DRAWN = ("lanekeeping", "overtaking")
 ONE_CAR = ("agents", "overtakers", "keepers", "placement", "driver")
 """EnvConfig fields the Gym env sets itself: one car of the traffic driver."""
 RESET_TRIES = 10
-"""Episodes drawn before giving up when traffic leaves the car no free place to enter."""
+"""Episodes drawn before giving up when traffic leaves the car no free place to enter, or no place
+with room ahead for its episode."""
+MIN_RUN_S = 20.0
+"""s: the car starts only where its route leaves room for this long at the start edge's speed limit
+(or for the whole episode, if shorter): on a user's road `reset(seed=0)` put it 8 m before the road's
+end, and the episode was over after 2 steps."""
+ROOM_SHARE = 0.5
+"""... but never more room than this share of the longest drive the road offers from any edge's start
+(a short road has no place with 20 s ahead)."""
 
 
 class TrafficGymEnv(gymnasium.Env):
@@ -63,6 +74,7 @@ class TrafficGymEnv(gymnasium.Env):
         assert isinstance(env, TrafficEnv)
         self.traffic = env
         self.behaviour = behaviour
+        self._longest: dict[str, float] = {}  # per road: longest_drive, as far as it matters
         self.render_mode = render_mode
         self.observation_space = env.observation_space("agent_0")
         self.action_space = env.action_space("agent_0")
@@ -70,20 +82,51 @@ class TrafficGymEnv(gymnasium.Env):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        """A new episode; a draw with no free place for the car is redrawn with the next seed."""
+        """A new episode; a draw with no free place for the car, or with too little road ahead of it for
+        its episode (MIN_RUN_S), is redrawn with the next seed."""
         super().reset(seed=seed)
         behaviour = self.behaviour
         if behaviour == "multi":
             behaviour_id = int(self.np_random.integers(len(DRAWN)))
             self.traffic.assign_behaviours(np.array([float(behaviour_id)]))
             behaviour = DRAWN[behaviour_id]
+        short = 0
         for attempt in range(RESET_TRIES):
             try:
                 obs = self.traffic.reset_arrays(None if seed is None else seed + attempt)
             except NoRoomError:
                 continue
+            if self._room_ahead() < self._room_needed():
+                short += 1
+                continue
             return observation(obs[0]), {"road": self.traffic.road_name, "behaviour": behaviour}
+        if short:
+            raise BehaveError(
+                f"no place for the car with room ahead for its episode in {RESET_TRIES} draws "
+                f"({short} too near the end of the road, {RESET_TRIES - short} with no free place)"
+            )
         raise BehaveError(f"no free place for the car in {RESET_TRIES} episodes: traffic too dense")
+
+    def _room_ahead(self) -> float:
+        """Metres left on the car's route from where it was put down."""
+        traffic = self.traffic
+        assert traffic.sim is not None
+        return room_ahead(traffic.sim, traffic.geometry, traffic.agents[0])
+
+    def _room_needed(self) -> float:
+        """Metres of route the car must have ahead at the start: MIN_RUN_S (or the episode, if shorter)
+        at its edge's limit, at most ROOM_SHARE of the longest drive on this road."""
+        traffic = self.traffic
+        assert traffic.sim is not None
+        config = traffic.config
+        lane = traffic.sim.read_lanes(traffic.agents[:1])[0]
+        edge = traffic.geometry.edges.get(lane.rpartition("_")[0])
+        limit = edge.speed if edge is not None else max(e.speed for e in traffic.geometry.edges.values())
+        need = min(MIN_RUN_S, config.max_steps * config.step_length) * limit
+        road = traffic.road_name
+        if road not in self._longest:
+            self._longest[road] = longest_drive(route_graph(traffic.geometry), need / ROOM_SHARE)
+        return min(need, ROOM_SHARE * self._longest[road])
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         batch = self.traffic.step_arrays(np.asarray(action, np.float32).reshape(1, 3))
@@ -117,6 +160,35 @@ def check_settings(settings: dict[str, Any]) -> None:
         raise BehaveError(
             f"the Gym env drives one car of the traffic driver: {', '.join(owned)} cannot be set"
         )
+
+
+def room_ahead(sim: SumoSim, geometry: RoadGeometry, vid: str) -> float:
+    """Metres `vid` can still drive along its route: the rest of its edge and the edges after it
+    (junctions left out; an internal lane counts from the next edge)."""
+    (lane,), (pos,) = sim.read_lanes([vid]), sim.read_lane_places([vid])[0]
+    edges = geometry.edges
+    here = edges.get(lane.rpartition("_")[0])
+    rest = max(here.length - float(pos), 0.0) if here is not None else 0.0
+    return rest + sum(edges[e].length for e in sim.route_ahead(vid) if e in edges)
+
+
+def longest_drive(graph: RouteGraph, cap: float) -> float:
+    """The longest drive along the multi-lane edges from any edge's start (as routes.RoutePool walks
+    them), counted up to `cap` metres (loops make it endless)."""
+    if not graph.edges:
+        return 0.0
+    source = np.array([k for k, ahead in enumerate(graph.successors) for _ in ahead], np.int64)
+    target = np.array([t for ahead in graph.successors for t in ahead], np.int64)
+    reach = np.minimum(graph.length.astype(float), cap)
+    rounds = len(graph.edges) + int(cap / max(float(graph.length.min()), 1.0)) + 1
+    for _ in range(rounds):  # each round extends the drives by one edge, until none grows
+        best = np.zeros(len(reach))
+        np.maximum.at(best, source, reach[target])
+        grown = np.minimum(graph.length + best, cap)
+        if np.array_equal(grown, reach):
+            break
+        reach = grown
+    return float(reach.max())
 
 
 def observation(row: np.ndarray) -> np.ndarray:

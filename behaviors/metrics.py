@@ -43,6 +43,7 @@ class EpisodeStats:
     longest_standstill: np.ndarray = field(init=False)
     end_step: np.ndarray = field(init=False)  # the step an agent left after (0: still on the road)
     end_reason: np.ndarray = field(init=False)
+    placed: np.ndarray = field(init=False)  # [n_agents] bool: the slot's car started (`place`; all: default)
 
     def __post_init__(self) -> None:
         for name in ("speed_sum", "speed_steps", "reward", "progress", "collided", "standing",
@@ -50,6 +51,13 @@ class EpisodeStats:
             setattr(self, name, np.zeros(self.n_agents))
         self.end_step = np.zeros(self.n_agents, np.int64)
         self.end_reason = np.full(self.n_agents, "still_driving", dtype=object)
+        self.placed = np.ones(self.n_agents, bool)
+
+    def place(self, slots: np.ndarray) -> None:
+        """Only these slots' cars started: the traffic env puts agents down at free places and a slot
+        that finds none sits the episode out. Per-agent figures count the placed agents."""
+        self.placed = np.zeros(self.n_agents, bool)
+        self.placed[slots] = True
 
     def record(self, slots: np.ndarray, batch: StepBatch) -> None:
         self.steps += 1
@@ -76,8 +84,9 @@ class EpisodeStats:
 
 
 def agent_runs(stats: EpisodeStats, ids: list[str], policy: str) -> list[AgentRun]:
-    """The episode's rows of the agents table, by agent slot; an agent that left at the time limit or the
-    road's end was still driving."""
+    """The episode's rows of the agents table, by agent slot, for the slots whose car started
+    (`placed`: a slot that found no free place has no row); an agent that left at the time limit or
+    the road's end was still driving."""
     dt, start = stats.step_length, stats.start_s
     end = start + np.where(stats.end_step > 0, stats.end_step, stats.steps) * dt
     overtaker = stats.behaviour_id > 0
@@ -85,19 +94,25 @@ def agent_runs(stats: EpisodeStats, ids: list[str], policy: str) -> list[AgentRu
     vtype = [OVERTAKER_TYPE if over else KEEPER_TYPE for over in overtaker]
     distance, longest = stats.speed_sum * dt, stats.longest_standstill
     runs = []
-    for k in range(stats.n_agents):
+    for k in np.flatnonzero(stats.placed).tolist():
         ending = float(end[k]), str(stats.end_reason[k]), float(distance[k]), float(longest[k])
         runs.append(AgentRun(ids[k], behaviour[k], vtype[k], policy, start, *ending))
     return runs
 
 
 def summary(stats: EpisodeStats, speed_limit: float, passed: float | None = None) -> dict[str, Any]:
-    """One episode's row: system metrics and per-behaviour mean speeds (fractions of the limit)."""
+    """One episode's row: system metrics and per-behaviour mean speeds (fractions of the limit).
+
+    Per-agent figures are per agent placed (`agents_placed`; EpisodeStats.place): a slot whose car
+    found no free place to start drove nothing and counts for nothing."""
+    placed = stats.placed
+    count = max(int(placed.sum()), 1)
     row: dict[str, Any] = {
         "steps": stats.steps,
-        "reward_per_agent": float(stats.reward.mean()),
-        "progress_per_agent": float(stats.progress.mean()),
-        "colliding_steps_per_agent": stats.agent_colliding_steps / stats.n_agents,
+        "agents_placed": int(placed.sum()),
+        "reward_per_agent": float(stats.reward[placed].sum() / count),
+        "progress_per_agent": float(stats.progress[placed].sum() / count),
+        "colliding_steps_per_agent": stats.agent_colliding_steps / count,
         "colliding_steps_pct": 100.0 * stats.colliding_steps / max(stats.steps, 1),
         "reward_sum": float(stats.reward.sum()),
         "progress_sum": float(stats.progress.sum()),
@@ -109,6 +124,9 @@ def summary(stats: EpisodeStats, speed_limit: float, passed: float | None = None
     }
     for name, flag in (("overtaker", 1.0), ("keeper", 0.0)):
         mask = stats.behaviour_id == flag
+        if mask.any():
+            row[f"{name}s_placed"] = int((mask & placed).sum())
+            mask &= placed
         if mask.any():
             row[f"{name}_speed_frac"] = float(
                 stats.speed_sum[mask].sum() / max(stats.speed_steps[mask].sum(), 1) / speed_limit
@@ -132,6 +150,8 @@ def passed_fraction(env: BehaveEnv) -> float | None:
 
 
 def mean_rows(rows: list[dict[str, Any]]) -> dict[str, float]:
-    """Average of every numeric column over episodes."""
-    keys = [k for k in rows[0] if k != "episode" and isinstance(rows[0][k], int | float)]
+    """Average of every numeric column over the episodes that have it (an episode whose overtakers all
+    found no place to start has no overtaker figures)."""
+    numeric = (k for r in rows for k, v in r.items() if isinstance(v, int | float))
+    keys = dict.fromkeys(k for k in numeric if k != "episode")
     return {k: float(np.mean([r[k] for r in rows if k in r])) for k in keys}

@@ -205,7 +205,8 @@ def episode_row(episode: int, done: Episode, speed_limit: float) -> dict[str, An
 def episode_agents(episode: int, stats: EpisodeStats, ids: list[str], policy: str) -> list[list[Any]]:
     """The episode's rows of the run's agents table (agents_table, "train"): each agent and its reward."""
     runs = agent_runs(stats, ids, policy)
-    return [[*run.cells(), episode, cell(float(r))] for run, r in zip(runs, stats.reward, strict=True)]
+    rewards = stats.reward[stats.placed]  # agent_runs: the slots whose car started
+    return [[*run.cells(), episode, cell(float(r))] for run, r in zip(runs, rewards, strict=True)]
 
 
 class Trainer:

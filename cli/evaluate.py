@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from behaviors.cli.checks import NON_NEGATIVE, POSITIVE, SEED, check_number
+from behaviors.cli.checks import NET, NON_NEGATIVE, POSITIVE, SEED, check_number
 from behaviors.cli.progress import QUIET, VERBOSE, verbosity
 from behaviors.errors import BehaveError
 from behaviors.files import check_output_path
@@ -51,6 +51,18 @@ def evaluate_command(
             help="slower passive cars ahead (overtaking: default as many as agents)", callback=NON_NEGATIVE
         ),
     ] = None,
+    net: Annotated[
+        Path | None,
+        typer.Option(
+            help="traffic driver: evaluate on your .net.xml (or a bundled scenario's name) instead of "
+            "--scenario, among SUMO's cars at densities drawn per episode",
+            callback=NET,
+        ),
+    ] = None,
+    sumocfg: Annotated[
+        Path | None,
+        typer.Option(help="traffic driver: evaluate in your .sumocfg instead, its routes being SUMO's cars"),
+    ] = None,
     shield: Annotated[bool, typer.Option(help="drive through populate's safety shield")] = False,
     realism: Annotated[
         bool, typer.Option(help="record SUMO's FCD and write the realism report of each policy and setting")
@@ -64,13 +76,23 @@ def evaluate_command(
     """Average the paper's metrics over episodes for every policy and setting (-q: only the files
     and errors; -v: each setting's figures as it finishes)."""
     level = verbosity(quiet, verbose)
-    from behaviors.evaluate import PAPER_METRICS, plan_evaluation, realism_markdown, run_plan, write_report
+    from behaviors.evaluate import (
+        PAPER_METRICS,
+        placed_text,
+        plan_evaluation,
+        realism_markdown,
+        road_label,
+        run_plan,
+        short_placements,
+        write_report,
+    )
     from behaviors.realism import SKIP_S
 
     plan = plan_evaluation(
         list(checkpoints or []), agents=parse_ints(agents), episodes=episodes, behaviour=behaviour,
         overtakers=overtakers, keepers=keepers, placements=parse_list(placement), scenario=scenario,
         seed=seed, max_steps=max_steps, baseline=baseline, opponents=opponents, shield=shield,
+        net=None if net is None else net.resolve(), sumocfg=None if sumocfg is None else sumocfg.resolve(),
     )  # fmt: skip
     console = Console(quiet=level < 0)
     seconds = max_steps * plan.settings[0][1].step_length
@@ -86,7 +108,8 @@ def evaluate_command(
         realism=out / "realism" if realism else None,
         on_result=(lambda row: console.print(setting_line(row), style="dim")) if level > 0 else None,
     )
-    table = Table(title=f"behave evaluate ({episodes} episodes per setting)")
+    per = f"{episodes} episode{'' if episodes == 1 else 's'} per setting"
+    table = Table(title=f"behave evaluate on {road_label(plan)} ({per})")
     columns = ["policy", "setting", *(m for m, _ in PAPER_METRICS), "off_tracks", "mean_speed_frac"]
     columns += [
         c for c in ("overtakes_per_agent", "overtaker_speed_frac", "keeper_speed_frac") if c in results
@@ -96,8 +119,13 @@ def evaluate_command(
             column.replace("_", " "), justify="left" if column in ("policy", "setting") else "right"
         )
     for _, row in results.iterrows():
-        table.add_row(*(row[c] if isinstance(row[c], str) else f"{row[c]:,.2f}" for c in columns))
+        cells = [row[c] if isinstance(row[c], str) else f"{row[c]:,.2f}" for c in columns]
+        if row.get("agents_placed", row["agents"]) < row["agents"]:  # say so where not all started
+            cells[1] += f"\n({placed_text(row)} started)"
+        table.add_row(*cells)
     console.print(table)
+    for line in short_placements(results):
+        console.print(line, style="yellow", markup=False, highlight=False)
     if not realism_table.empty:
         console.print(f"\nRealism (full reports in {out / 'realism'}/<policy>/<setting>/):\n")
         console.print(realism_markdown(realism_table), markup=False, highlight=False)
