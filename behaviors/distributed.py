@@ -155,11 +155,32 @@ def start_ray(address: str | None, workers: int, *, log_to_driver: bool = True) 
     }  # fmt: skip
     if address is None:
         options |= {"num_cpus": max(workers, os.cpu_count() or 1), "object_store_memory": OBJECT_STORE_BYTES}
+    quiet_token_note()
     try:
         ray.init(address=address, **options)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         raise BehaveError(f"cannot start or join Ray at {address or 'this machine'}: {exc}") from None
     return ray
+
+
+TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
+TOKEN_NOTE = "Token authentication is enabled for this Ray cluster"
+"""Ray (2.5x on) starts every local cluster with token authentication (a token in ~/.ray/auth_token,
+made once) and says so each time as a WARNING, which behave's sweeps and trainings printed. The cluster
+is as safe as Ray makes it, so the note is dropped (see `quiet_token_note`); RAY_AUTH_MODE=disabled
+still opts out, as Ray's note says."""
+
+
+class _DropTokenNote(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith(TOKEN_NOTE)
+
+
+def quiet_token_note() -> None:
+    """Drop Ray's token-authentication note (TOKEN_NOTE) and nothing else of its logging; once."""
+    logger = logging.getLogger(TOKEN_LOGGER)
+    if not any(isinstance(f, _DropTokenNote) for f in logger.filters):
+        logger.addFilter(_DropTokenNote())
 
 
 def check_reachable(address: str) -> None:

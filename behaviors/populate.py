@@ -288,7 +288,7 @@ class PopulateSummary:
                 if self.scenario_cars
                 else {}
             ),
-            "simulated_s": self.simulated_s,
+            "simulated_s": round(self.simulated_s, 6),  # a sum of steps: 19.99999999999996 is 20
             "wall_s": self.wall_s,
             "real_time_factor": self.real_time_factor,
         }
@@ -297,12 +297,12 @@ class PopulateSummary:
                 out[f"{name}_mean_speed"] = self.speed_sum[name] / self.speed_steps[name]
         out.update({f"agents_{reason}": n for reason, n in self.ended.items()})
         out[f"agents_standing_{LONG_STANDSTILL_S:.0f}s"] = self.long_standstills
-        out["longest_standstill_s"] = self.longest_standstill_s
+        out["longest_standstill_s"] = round(self.longest_standstill_s, 6)
         if self.sumo is not None:  # SUMO's own vehicles beside the agents
             if self.sumo.steps:
                 out["sumo_mean_speed"] = self.sumo.speed_sum / self.sumo.steps
             out[f"sumo_standing_{LONG_STANDSTILL_S:.0f}s"] = self.sumo.long_standstills
-            out["sumo_longest_standstill_s"] = self.sumo.longest_standstill_s
+            out["sumo_longest_standstill_s"] = round(self.sumo.longest_standstill_s, 6)
         return out
 
     def count_agents(self, ended: EndedAgents, driving: list[AgentRow]) -> None:

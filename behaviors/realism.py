@@ -689,12 +689,27 @@ def measure(
     ratios = {}
     if {OVERTAKERS, KEEPERS} <= set(groups):
         ratios = like_for_like(live, made, trips(tr), OVERTAKERS, KEEPERS)
-        notes.append(
-            f"overtakers / keepers on the trips both made ({ratios['trips']:.0f}, first to last edge; "
-            f"{100 * ratios['km_share']:.0f}% of their km): "
-            f"mean speed {ratios['mean_speed']:.2f}x, passes per km {ratios['passes_per_km']:.2f}x"
-        )
+        notes.append(like_for_like_note(ratios))
     return Report(table.astype(float), metrics, samples, tuple(notes), agents is not None, ratios)
+
+
+def like_for_like_note(ratios: dict[str, float]) -> str:
+    """`like_for_like`'s ratios in words: `1.23x`, or what an infinite or undefined ratio means."""
+    if not ratios["trips"]:
+        return "overtakers / keepers: no trip both made (first to last edge), so no like-for-like ratios"
+
+    def times(value: float, what: str) -> str:
+        if math.isfinite(value):
+            return f"{value:.2f}x"
+        if math.isinf(value):
+            return f"only the overtakers had any {what}"
+        return f"neither had any {what}"
+
+    return (
+        f"overtakers / keepers on the trips both made ({ratios['trips']:.0f}, first to last edge; "
+        f"{100 * ratios['km_share']:.0f}% of their km): mean speed {times(ratios['mean_speed'], 'speed')}, "
+        f"passes per km {times(ratios['passes_per_km'], 'passes')}"
+    )
 
 
 def trips(tr: pd.DataFrame) -> np.ndarray:

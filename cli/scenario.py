@@ -27,7 +27,7 @@ def list_scenarios() -> None:
         info = scenario_info(scenario)
         table.add_row(
             info.name,
-            str(info.lanes),
+            info.lanes_text,
             f"{info.length_m:,.0f} m",
             f"{info.lane_width_m:.1f} m",
             str(info.edges),

@@ -46,11 +46,18 @@ class ScenarioInfo:
     """Facts read back from the generated net (not from the builder's parameters)."""
 
     name: str
-    lanes: int
+    lanes: int  # the most car lanes of any normal edge
     length_m: float
     lane_width_m: float
     edges: int
     looping: bool
+    route_lanes: tuple[int, int] = (0, 0)  # the fewest and the most lanes along the route
+
+    @property
+    def lanes_text(self) -> str:
+        """`3`, or `3-4` for a road whose route widens (the motorway's weave)."""
+        fewest, most = self.route_lanes
+        return str(self.lanes) if fewest in (0, most) else f"{fewest}-{most}"
 
 
 def data_dir() -> Path:
@@ -112,6 +119,7 @@ def scenario_info(scenario: Scenario) -> ScenarioInfo:
         lane_width_m=normal[0][0][2],
         edges=len(normal),
         looping=scenario.looping,
+        route_lanes=(min(len(lanes[e]) for e in route), max(len(lanes[e]) for e in route)),
     )
 
 

@@ -38,7 +38,8 @@ DESCRIPTIONS = {
     "ring": "closed 3-lane oval, 3.0 km, curve radius 200 m",
     "highway": "straight 3-lane motorway, 3 km, UTM-32 projection (geo FCD)",
     "tiny": "straight 2-lane road, 600 m, for fast tests",
-    "motorway": "curved 3-lane motorway, 4.2 km, on-ramp, weave and exit (never trained on)",
+    "motorway": "curved 3-lane motorway, 4.4 km; the on-ramp's lane runs on as a 4th to the exit (a "
+    "1.2 km weave); never trained on",
 }
 
 # --precision 4: with 2 decimals, rounding alone bends 3 m curve segments by up to +-40 %.
