@@ -14,6 +14,7 @@ import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
+from datetime import datetime, timedelta, timezone
 from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -53,6 +54,11 @@ KML_DOC_HEADER = (
     "\t<name>SUMO FCD</name>\n\t<open>1</open>\n\t<description>traces of SUMO FCD output</description>\n"
 )
 GPX_NAMESPACE = "http://www.topografix.com/GPX/1/0"
+GPX_TIME = re.compile(r"<time>([^<]*)</time>")
+GPX_EPOCH = datetime(1970, 1, 1, tzinfo=timezone.utc)
+"""The date and time of an FCD's time 0 in GPX, unless given (`behave export --start-time`): SUMO's
+seconds are no date."""
+IPG_HEADER = "# Time tx ty tz rx ry rz"
 GEO_HEADER = re.compile(r'<fcd-output\.geo value="true"|<!-- behave populate:[^\n]* geo=true')
 TIMESTEP = re.compile(rb'<timestep time="([^"]*)"')
 
@@ -344,10 +350,14 @@ def validate_fcd_xml(path: Path) -> None:
         raise BehaveError(f"{path} is not valid FCD XML{where}: {error.reason}")
 
 
-def export_fcd(fcd: Path, fmt: str, *, net: Path | None, out: Path) -> list[Path]:
-    """Convert FCD (xml, csv or parquet) with traceExporter; returns the files written.
+def export_fcd(
+    fcd: Path, fmt: str, *, net: Path | None, out: Path, start: datetime | None = None
+) -> list[Path]:
+    """Convert FCD (xml, csv or parquet) with traceExporter (ipg: behave's own writer, see `write_ipg`);
+    returns the files written.
 
-    `out` is the main file; ns2 adds `<stem>.config<suffix>` and `<stem>.activity<suffix>`.
+    `out` is the main file; ns2 adds `<stem>.config<suffix>` and `<stem>.activity<suffix>`. `start`:
+    the date and time of the FCD's time 0 in gpx's ISO times (None: GPX_EPOCH).
     gpx and kml need lon/lat: an FCD recorded with geo output (used as it is, `net` or not),
     or `net` with a projection. ns2, omnet and ipg need metres: a geo FCD is projected back
     with `net`. Files appear complete or not at all (temp dir beside `out`, then os.replace).
@@ -364,9 +374,15 @@ def export_fcd(fcd: Path, fmt: str, *, net: Path | None, out: Path) -> list[Path
     work = temp_dir(out)
     try:
         source = _traceable_fcd(fcd, source_format, work / "input.fcd.xml", net, projection)
-        written = _run_trace_exporter(source, fmt, out.name, work)
+        if fmt == "ipg":
+            written = [write_ipg(read_fcd(source), work / out.name)]
+        else:
+            written = _run_trace_exporter(source, fmt, out.name, work)
         for path in written:
-            _FIXES.get(fmt, _unchanged)(path)
+            if fmt == "gpx":
+                _fix_gpx(path, start or GPX_EPOCH)
+            else:
+                _FIXES.get(fmt, _unchanged)(path)
         finals = [out.with_name(path.name) for path in written]
         for path, final in zip(written, finals, strict=True):
             os.replace(path, final)
@@ -527,11 +543,34 @@ def _fix_kml(path: Path) -> None:
     _ship_xml(path, text)
 
 
-def _fix_gpx(path: Path) -> None:
-    """Well-formed already, but GPX 1.0 readers need its namespace and a creator."""
+def _fix_gpx(path: Path, start: datetime) -> None:
+    """Well-formed already, but GPX 1.0 readers need its namespace and a creator, and its times to be
+    dates (xsd:dateTime): traceExporter writes the FCD's seconds, `<time>0.0</time>`."""
     text = path.read_text(encoding="utf-8")
     root = f'<gpx version="1.0" creator="behave (SUMO traceExporter)" xmlns="{GPX_NAMESPACE}">'
+    text = GPX_TIME.sub(lambda m: f"<time>{iso_time(start, float(m[1]))}</time>", text)
     _ship_xml(path, text.replace('<gpx version="1.0">', root, 1))
+
+
+def iso_time(start: datetime, seconds: float) -> str:
+    """`start` + `seconds` as GPX's xsd:dateTime in UTC, to the millisecond: 1970-01-01T00:00:00.200Z."""
+    moment = (start.astimezone(timezone.utc) if start.tzinfo else start) + timedelta(seconds=seconds)
+    return moment.strftime("%Y-%m-%dT%H:%M:%S.") + f"{moment.microsecond // 1000:03d}Z"
+
+
+def write_ipg(df: pd.DataFrame, path: Path) -> Path:
+    """IPG trace text with each vehicle's rows together under `# vehicle <id>`, by time (SUMO's
+    traceExporter printed every vehicle's rows step by step with no id: 600 vehicles interleaved).
+    Columns as SUMO's: time, x, y, z (0 without elevation), the FCD angle, 0, 0."""
+    z = df["z"] if "z" in df.columns else None
+    with open(path, "w", encoding="utf-8") as f:
+        for vid, rows in df.assign(z=0.0 if z is None else z.fillna(0.0)).groupby("id", sort=False):
+            f.write(f"# vehicle {vid}\n{IPG_HEADER}\n")
+            rows = rows.sort_values("time", kind="stable")
+            for t, x, y, height, angle in zip(*(rows[c].tolist() for c in ("time", "x", "y", "z", "angle")),
+                                               strict=True):  # fmt: skip
+                f.write(f"{t!r} {x!r} {y!r} {height!r} {angle!r} 0 0\n")
+    return path
 
 
 def _ship_xml(path: Path, text: str) -> None:
@@ -546,4 +585,4 @@ def _unchanged(path: Path) -> None:
     """ns2 and ipg are plain text."""
 
 
-_FIXES = {"omnet": _fix_omnet, "kml": _fix_kml, "gpx": _fix_gpx}
+_FIXES = {"omnet": _fix_omnet, "kml": _fix_kml}  # gpx: _fix_gpx, with the start time

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from behaviors.cli.checks import NET
+from behaviors.errors import BehaveError
 from behaviors.export import EXPORT_FORMATS, export_fcd, read_fcd
 
 
@@ -25,10 +27,30 @@ def export_command(
             callback=NET,
         ),
     ] = None,
+    start_time: Annotated[
+        str | None,
+        typer.Option(
+            help="gpx: the date and time of the FCD's time 0, ISO 8601 (2024-05-06T08:00:00Z; no zone: "
+            "UTC) [default: 1970-01-01T00:00:00Z]"
+        ),
+    ] = None,
 ) -> None:
-    """Convert FCD with SUMO's traceExporter, fixing the outputs it writes malformed."""
-    for path in export_fcd(fcd, to, net=net, out=out):
+    """Convert FCD with SUMO's traceExporter, fixing the outputs it writes malformed (ipg: one block
+    of rows per vehicle, under its id)."""
+    for path in export_fcd(fcd, to, net=net, out=out, start=parse_start(start_time)):
         typer.echo(f"wrote {path}")
+
+
+def parse_start(text: str | None) -> datetime | None:
+    """--start-time as a datetime (UTC where no zone is given)."""
+    if text is None:
+        return None
+    try:
+        start = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+    except ValueError:
+        raise BehaveError(f"--start-time takes an ISO 8601 date and time such as 2024-05-06T08:00:00Z, "
+                          f"got '{text}'") from None  # fmt: skip
+    return start if start.tzinfo else start.replace(tzinfo=timezone.utc)
 
 
 def plot_command(
