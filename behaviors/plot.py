@@ -28,6 +28,7 @@ SUMO_CAR = ("SUMO car", "tab:gray")
 # position only on nets whose edges carry kilometrage (else the position on the current edge).
 ALONG_LABELS = {
     "distance": "road position [m]",
+    "road": "road position along the net [m]",
     "odometer": "distance driven since insertion [m]",
     "pos": "position on lane [m]",
 }
@@ -46,8 +47,10 @@ def plot_fcd(
 ) -> None:
     """Time-space diagram and lateral position over time, one line per vehicle, as PNG.
 
-    The time-space axis is the road position (FCD `distance`) when it grows along every trace,
-    else the distance driven since insertion (`odometer`). Lateral positions are in lanes:
+    The time-space axis is the road position: FCD `distance` when it grows along every trace (a net
+    whose edges carry kilometrage), else, with `net`, each edge's place along the net (`road_offsets`)
+    plus the position on it; without either, the distance driven since insertion (`odometer`, where one
+    jam shows at as many heights as the cars came from places). Lateral positions are in lanes:
     posLat is divided by each lane's width read from `net`, or by `lane_width` for lanes it
     does not name (or without a net).
     """
@@ -61,8 +64,7 @@ def plot_fcd(
     figure = Figure(figsize=(11, 8), layout="constrained")
     FigureCanvasAgg(figure)
     space, lateral = figure.subplots(2, 1, sharex=True, height_ratios=(3, 2))
-    df = df.sort_values(["id", "time"], kind="stable")
-    along = _along_column(df)
+    df, along = time_space_axis(df.sort_values(["id", "time"], kind="stable"), net)
     styles = trace_styles(df)
     for vid, trace in df.groupby("id", sort=False):
         label, colour = styles[vid]
@@ -100,6 +102,76 @@ def _along_column(df: pd.DataFrame) -> str:
         if steps.min(skipna=True) < -DISTANCE_NOISE:
             return present[1]
     return present[0]
+
+
+def time_space_axis(df: pd.DataFrame, net: Path | None) -> tuple[pd.DataFrame, str]:
+    """The time-space diagram's column (an ALONG_LABELS key): FCD `distance` where it is a road
+    position, else `road` (added: `road_positions`) with a net that places the records, else
+    `odometer` (or `pos`). `df` sorted by id and time."""
+    along = _along_column(df)
+    if along != "distance" and net is not None:
+        road = road_positions(df, Path(net))
+        if road is not None:
+            return df.assign(road=road), "road"
+    return df, along
+
+
+def road_offsets(net: Path) -> dict[str, float]:
+    """Normal edge -> metres from the road's start to the edge's start, along the car connections: an
+    edge starts where the longest way onto it ends (loops are cut where first met, a ring's lap starts
+    again at 0), and an edge nothing leads onto ends where it joins (an on-ramp sits just before its
+    merge, not at 0). {} for a net with no car edge (geometry.load_geometry refuses it)."""
+    from behaviors.geometry import load_geometry
+
+    try:
+        geometry = load_geometry(net, cache=True)
+    except BehaveError:
+        return {}
+    length = {e: info.length for e, info in geometry.edges.items() if info.normal}
+    ahead = {e: [s for s in geometry.car_successors.get(e, ()) if s in length] for e in length}
+    behind: dict[str, list[str]] = {e: [] for e in length}
+    for edge, successors in ahead.items():
+        for successor in successors:
+            behind[successor].append(edge)
+    offset: dict[str, float] = {}
+    waiting = {e: len(behind[e]) for e in length}
+    order = [e for e in length if not waiting[e]]
+    for edge in order:  # Kahn's order: every way onto an edge is known before it
+        offset.setdefault(edge, 0.0)
+        for successor in ahead[edge]:
+            offset[successor] = max(offset.get(successor, 0.0), offset[edge] + length[edge])
+            waiting[successor] -= 1
+            if not waiting[successor]:
+                order.append(successor)
+    for start in length:  # loops: on from where they are first met
+        if start in offset and all(s in offset for s in ahead[start]):
+            continue
+        queue = [start]
+        offset.setdefault(start, 0.0)
+        while queue:
+            edge = queue.pop(0)
+            for successor in ahead[edge]:
+                if successor not in offset:
+                    offset[successor] = offset[edge] + length[edge]
+                    queue.append(successor)
+    for edge in length:
+        if not behind[edge] and ahead[edge]:  # an entry: it ends where it joins
+            offset[edge] = max(offset[edge], min(offset[s] for s in ahead[edge]) - length[edge])
+    return offset
+
+
+def road_positions(df: pd.DataFrame, net: Path) -> pd.Series | None:
+    """Each record's place along the net (`road_offsets` of its edge + its position on the lane);
+    records inside a junction are interpolated along their vehicle's trace (df sorted by id, time).
+    None if the net places none of the records."""
+    offsets = road_offsets(net)
+    if not offsets or "pos" not in df.columns:
+        return None
+    edge = df["lane"].astype(str).str.rpartition("_")[0]
+    road = (edge.map(offsets).astype("float64") + df["pos"]).astype("float64")
+    if road.isna().all():
+        return None
+    return road.groupby(df["id"], sort=False).transform(lambda trace: trace.interpolate(limit_area="inside"))
 
 
 def _lane_widths(net: Path) -> dict[str, float]:

@@ -23,6 +23,9 @@ Design choices (see README, "Populate"):
   after the step under way: what was simulated is kept as a whole FCD (and agents
   table), and `populate` raises PopulateInterrupted with the summary marked cut short.
 * `gui` runs the same simulation in sumo-gui (libsumo's own GUI), coloured by vType.
+* `connect` joins a SUMO another program runs, as one more TraCI client (joined.py, `populate_joined`):
+  the same share rules and driver, no FCD of its own (SUMO's outputs hold every vehicle), the
+  agents still on the road handed back to SUMO when behave leaves (docs/manual/connect.md).
 """
 
 from __future__ import annotations
@@ -64,10 +67,12 @@ from behaviors.export import FCD_SUFFIXES, fcd_options, require_projection, seal
 from behaviors.files import atomic_path, check_output_path, temp_path
 from behaviors.geometry import CAR_CLASS, RoadGeometry, load_geometry
 from behaviors.interrupt import sigint_between_steps
+from behaviors.joined import SUMO_NET, JoinedSim, connection_closed, parse_address
 from behaviors.policy import PRETRAINED, RULES, Policy, load_policy, rules_policy
 from behaviors.policy import resolve as resolve_policy
 from behaviors.routes import RoutePool, misplaced, route_graph
 from behaviors.scenario_config import (
+    LATERAL_RESOLUTION,
     SUMO_STEP_LENGTH,
     ScenarioConfig,
     lateral_for,
@@ -112,6 +117,9 @@ class PopulateConfig:
     lateral_resolution: float | None = None  # with a sumocfg: SUMO's sublane width (m); None: lateral_for
     outputs: Path | None = None  # with a sumocfg: the folder its own outputs (detectors, summary, ...) go to
     population: str | None = None  # the styled driver's: a preset name or a JSON file of style distributions
+    connect: str | None = None  # HOST:PORT: join that running SUMO as a TraCI client (populate_joined)
+    order: int = 2  # with connect: this client's place in each step (traci.setOrder)
+    agents_csv: Path | None = None  # the agents table; None: beside the FCD (fcd.agents.csv)
 
     @property
     def has_agents(self) -> bool:
@@ -127,7 +135,7 @@ class PopulateConfig:
         if self.overtakers < 0 or self.keepers < 0 or self.background < 0:
             raise BehaveError("agent and background counts must be >= 0")
         empty = self.overtakers + self.keepers == 0 and self.background == 0
-        if empty and self.routes is None and self.sumocfg is None:
+        if empty and self.routes is None and self.sumocfg is None and self.connect is None:
             raise BehaveError("nothing to simulate: zero agents and no background traffic")
         if self.duration <= 0:
             raise BehaveError(f"duration must be positive, got {self.duration}")
@@ -143,8 +151,10 @@ class PopulateConfig:
         for name in ("share", "overtaker_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise BehaveError(f"{name.replace('_', ' ')} must be in [0, 1], got {getattr(self, name)}")
-        if self.share > 0 and self.sumocfg is None:
-            raise BehaveError("--share converts a scenario's own cars: it needs --sumocfg")
+        if self.connect is not None:
+            self._validate_joined()
+        elif self.share > 0 and self.sumocfg is None:
+            raise BehaveError("--share converts a scenario's own cars: it needs --sumocfg (or --connect)")
         if self.outputs is not None and self.sumocfg is None:
             raise BehaveError("--outputs takes a scenario's own outputs: it needs --sumocfg")
         if self.lateral_resolution is not None and self.sumocfg is None:
@@ -153,6 +163,29 @@ class PopulateConfig:
             raise BehaveError(f"unknown driver '{self.driver}' (choose from {', '.join((*DRIVERS, RULES))})")
         if self.gui:
             check_display()
+
+    def _validate_joined(self) -> None:
+        """A joined run drives a share of the running simulation's cars; what would change that
+        simulation otherwise is set on its own side."""
+        parse_address(self.connect or "")
+        if self.order < 1:
+            raise BehaveError(f"--order must be 1 or more, got {self.order}")
+        if self.share <= 0:
+            raise BehaveError(
+                "--connect drives a share of the running simulation's passenger cars: give --share F > 0"
+            )
+        not_here = {
+            "--sumocfg": self.sumocfg is not None, "--routes": self.routes is not None, "--gui": self.gui,
+            "--geo": self.geo, "--keep-count": self.keep_count, "--outputs": self.outputs is not None,
+            "--lateral-resolution": self.lateral_resolution is not None,
+            "--keepers, --overtakers or --background": self.keepers + self.overtakers + self.background > 0,
+        }  # fmt: skip
+        for option, given in not_here.items():
+            if given:
+                raise BehaveError(
+                    f"--connect drives a share of the running simulation's cars: {option} does not apply "
+                    "(set it where that simulation is started; docs/manual/connect.md)"
+                )
 
 
 def config_from(
@@ -167,6 +200,8 @@ def config_from(
     values = {name: value for name, value in given.items() if value is not None}
     if values.get("driver") == RULES and "policy" in values:
         raise BehaveError("--driver rules drives with no network: drop --policy")
+    if values.get("connect") is not None and sumocfg is None:
+        return joined_config(values)
     if sumocfg is not None:
         if "net" in values:
             raise BehaveError(
@@ -201,6 +236,22 @@ def config_from(
     elif agents:
         values.setdefault("step_length", step)
     return PopulateConfig(sumocfg=sumocfg, **values)
+
+
+def joined_config(values: dict[str, Any]) -> PopulateConfig:
+    """The config of a joined run (--connect): no cars of behave's own unless asked (validate refuses
+    them), until the simulation ends unless --duration; the net and step are the running simulation's,
+    filled in when joining (`populate_joined`), so a step given here is refused."""
+    if "step_length" in values:
+        raise BehaveError(
+            "--connect runs at the step of the simulation it joins: drop --step-length (start SUMO with "
+            "the policy's step, --step-length 0.2 for the bundled ones)"
+        )
+    values.update({k: 0 for k in ("overtakers", "keepers", "background") if k not in values})
+    values.setdefault("duration", math.inf)
+    values.setdefault("net", SUMO_NET)
+    values["step_length"] = trained_step(values)  # checked against SUMO's when joining
+    return PopulateConfig(**values)
 
 
 TRAINED_STEP = EnvConfig.step_length
@@ -264,6 +315,9 @@ class PopulateSummary:
     sumo: SumoCars | None = None  # SUMO's own vehicles, measured as the agents are
     phases: dict[str, float] = field(default_factory=dict)
     cut_short: bool = False  # stopped by Ctrl-C before the duration: simulated_s says how far it got
+    left_simulation: str = ""  # a joined run: how it ended (JOINED_ENDS), "" for behave's own SUMO
+    handed_back: int = 0  # a joined run: agents given back to SUMO's driver when behave left
+    left_note: str = ""  # a joined run: what happened at the end, one line
 
     @property
     def real_time_factor(self) -> float:
@@ -296,6 +350,8 @@ class PopulateSummary:
             if self.speed_steps[name]:
                 out[f"{name}_mean_speed"] = self.speed_sum[name] / self.speed_steps[name]
         out.update({f"agents_{reason}": n for reason, n in self.ended.items()})
+        if self.left_simulation:  # a joined run
+            out["agents_handed_back_to_sumo"] = self.handed_back
         out[f"agents_standing_{LONG_STANDSTILL_S:.0f}s"] = self.long_standstills
         out["longest_standstill_s"] = round(self.longest_standstill_s, 6)
         if self.sumo is not None:  # SUMO's own vehicles beside the agents
@@ -551,8 +607,10 @@ class Population:
         config: PopulateConfig,
         on_status: Callable[[str], None] | None = None,
         policy: Policy | None = None,
+        joined: JoinedSim | None = None,
     ) -> None:
         self.config = config
+        self.joined = joined  # a running SUMO joined over TraCI (config.connect), used by start()
         self.scenario: ScenarioConfig | None = read_sumocfg(config.sumocfg) if config.sumocfg else None
         self.policy = populate_policy(config, policy)  # a wrong policy is found before set-up
         self.geometry = load_geometry(config.net, cache=True, on_status=on_status)
@@ -585,6 +643,9 @@ class Population:
 
     def start(self, fcd_tmp: Path | None) -> None:
         """Start SUMO writing FCD to `fcd_tmp` (None: no FCD, for benchmarks) and ask for the cars."""
+        if self.joined is not None:
+            self._join(self.joined)
+            return
         c, scenario = self.config, self.scenario
         routes = (c.routes,) if c.routes else ()
         fcd = () if fcd_tmp is None else tuple(fcd_options(fcd_tmp, geo=c.geo))
@@ -603,6 +664,15 @@ class Population:
         self.insert("overtaker", c.overtakers)
         self.insert("keeper", c.keepers)
         self.insert("background", c.background)
+
+    def _join(self, sim: JoinedSim) -> None:
+        """Take up the joined simulation: the agents' vTypes there, and the share of the passenger cars
+        already on the road (those that depart later are drawn as they depart, `_convert`)."""
+        self.sim = sim
+        sim.prepare_agents(self.fleet.driver.max_lateral_speed)
+        self.vehicles = sim.read_vehicles(with_distance=False)
+        self.summary.vehicles += len(self.vehicles.ids)
+        self._convert(list(self.vehicles.ids), sim.time)
 
     def insert(self, kind: str, count: int) -> None:
         """Ask SUMO for `count` new vehicles of a kind on random multi-lane routes, at free places."""
@@ -694,7 +764,7 @@ class Population:
         # background cars leave at the end of their route, or wrecked
         left_background = {v for v in arrived if v in self.background_ids}.union(wrecked_background)
         self.background_ids -= left_background
-        if self.scenario is not None:  # before _admit: behave's own cars are still pending
+        if self.scenario is not None or self.joined is not None:  # before _admit: behave's own are pending
             departed = [v for v in sim.departed() if v not in self.pending]
             self.summary.vehicles += len(departed)  # the scenario's own; behave's count as they join
             self._convert(departed, now)
@@ -925,6 +995,8 @@ def populate(
     """Run the whole simulation; the FCD file and the per-agent table beside it appear only if the
     run completed. `policy`: one already loaded drives instead of config.policy (the Python API's
     way to hold a policy's actions constant, policy.held_constant, or to record them)."""
+    if config.connect is not None:
+        return populate_joined(config, on_step, on_status, policy)
     config.validate()
     check_output_path(config.fcd)
     check_output_path(agents_path(config.fcd))
@@ -975,3 +1047,118 @@ class PopulateInterrupted(KeyboardInterrupt):
     def __init__(self, summary: PopulateSummary) -> None:
         super().__init__(f"interrupted after {summary.simulated_s:g} simulated seconds")
         self.summary = summary
+
+
+JOINED_ENDS = ("simulation_over", "closed_by_sumo", "duration", "interrupted")
+"""How a joined run ends: the simulation had no vehicles left to run (or reached SUMO's --end), SUMO
+closed the connection (it ended, was stopped, or the network dropped it), --duration simulated, Ctrl-C."""
+
+
+def joined_agents_path(config: PopulateConfig) -> Path:
+    return config.agents_csv if config.agents_csv is not None else agents_path(config.fcd)
+
+
+def populate_joined(
+    config: PopulateConfig,
+    on_step: Callable[[float], None] | None = None,
+    on_status: Callable[[str], None] | None = None,
+    policy: Policy | None = None,
+) -> PopulateSummary:
+    """`populate` inside a simulation another program runs (config.connect, docs/manual/connect.md):
+    join it as TraCI client number config.order, turn config.share of its passenger cars into agents
+    as `--sumocfg --share` does, step in lockstep with the other clients until the simulation is over,
+    SUMO closes the connection, config.duration or Ctrl-C; then give the agents still on the road back
+    to SUMO's driver and close this client only (SUMO runs on with the others). Writes the agents
+    table (`joined_agents_path`), no FCD: SUMO's own outputs hold every vehicle."""
+    config.validate()
+    table = joined_agents_path(config)
+    check_output_path(table)
+    torch.set_num_threads(POLICY_THREADS)
+    address = parse_address(config.connect or "")
+    if on_status:
+        on_status(f"joining SUMO at {address} as client {config.order}")
+    sim = JoinedSim(address, config.order, None if config.net == SUMO_NET else config.net)
+    population: Population | None = None
+    start = time.perf_counter()
+    end = "simulation_over"
+    try:
+        config = joinable(sim, config, policy)
+        population = Population(config, on_status, policy, joined=sim)
+        sim.check_net(set(population.geometry.edges))
+        population.start(None)
+        summary = population.summary
+        with sigint_between_steps() as interrupted:
+            while not sim.over:
+                if summary.simulated_s >= config.duration - 1e-9:
+                    end = "duration"
+                    break
+                try:
+                    population.step()
+                except Exception as exc:
+                    if not connection_closed(exc):
+                        raise
+                    sim.gone = sim.gone or str(exc) or type(exc).__name__
+                    end = "closed_by_sumo"
+                    break
+                if on_step:
+                    on_step(summary.simulated_s)
+                if interrupted():
+                    end = "interrupted"
+                    break
+        driving = population.driving_rows()
+        population.close()  # the agents still driving go back to SUMO, this client leaves
+        write_agents_csv(table, population.log.ended, driving)
+        summary.count_agents(population.log.ended, driving)
+        if summary.sumo is not None:
+            summary.sumo.finish()
+        summary.left_simulation, summary.handed_back = end, sim.handed_back
+        summary.left_note = joined_note(end, address, sim, summary)
+    finally:
+        if population is not None:
+            population.close()
+            population.log.ended.close()
+        sim.close()
+    summary.wall_s = time.perf_counter() - start
+    assert population is not None
+    summary.phases = dict(population.timer.seconds)
+    if end == "interrupted":
+        summary.cut_short = True
+        raise PopulateInterrupted(summary)
+    return summary
+
+
+def joinable(sim: JoinedSim, config: PopulateConfig, policy: Policy | None) -> PopulateConfig:
+    """The config with the joined simulation's net and step, or BehaveError if the agents cannot drive
+    in it: a step their policy was not trained at, or no sublanes to move sideways in."""
+    given = {"policy": config.policy, "driver": config.driver}
+    trained = checkpoint_step(policy.path) if policy is not None else trained_step(given)
+    name = (
+        policy.label if policy is not None else RULES if config.driver == RULES else Path(config.policy).stem
+    )
+    if not math.isclose(sim.step_length, trained):
+        raise BehaveError(
+            f"SUMO at {sim.address} steps {sim.step_length:g} s; {name} was trained at {trained:g} s steps "
+            f"and drives at no other: start SUMO with --step-length {trained:g}"
+        )
+    if sim.lateral_resolution <= 0:
+        raise BehaveError(
+            f"SUMO at {sim.address} runs without sublanes, and the agents move sideways within their lanes: "
+            f"start SUMO with --lateral-resolution {LATERAL_RESOLUTION:g}"
+        )
+    return replace(config, net=sim.net, step_length=sim.step_length)
+
+
+def joined_note(end: str, address: Any, sim: JoinedSim, summary: PopulateSummary) -> str:
+    """What happened at the end of a joined run, one line."""
+    at = f"at t={sim.time:g} s"
+    back = (
+        f"{sim.handed_back} agents handed back to SUMO's driver, SUMO runs on with the other clients"
+        if sim.handed_back
+        else "SUMO runs on with the other clients"
+    )
+    return {
+        "simulation_over": f"the simulation at {address} ended {at} (no vehicles left to run): left it",
+        "closed_by_sumo": f"SUMO at {address} closed the connection {at} ({sim.gone}): ended or stopped",
+        "duration": f"left SUMO at {address} after {summary.simulated_s:g} simulated s {at}; {back}",
+        "interrupted": f"interrupted (Ctrl-C) {at}: left SUMO at {address}; {back}",
+    }[end]

@@ -3,7 +3,8 @@
 libsumo allows a single simulation per process, so everything that talks to
 SUMO goes through this class: start with a seed, fast reset with `load`, step,
 read every vehicle's state once into arrays, write the two commands per agent,
-close. No other module imports libsumo.
+close. No other module imports libsumo. A SUMO another program runs is joined through
+joined.JoinedSim, a SumoSim over a TraCI connection (`behave populate --connect`).
 """
 
 from __future__ import annotations
@@ -319,7 +320,7 @@ class SumoSim:
         `direction` [K] (+1 towards higher lane indices) for its route (a strategic wish, as before an
         exit or where its lane ends), by the state it saved at the last step."""
         state = self._sumo.vehicle.getLaneChangeState
-        constants = self._sumo.constants
+        constants = self._constants
         side = {1: constants.LCA_LEFT, -1: constants.LCA_RIGHT}
         wish = [constants.LCA_STRATEGIC | side[d] for d in direction.tolist()]
         return np.fromiter(
@@ -327,6 +328,11 @@ class SumoSim:
             bool,
             len(ids),
         )
+
+    @property
+    def _constants(self) -> ModuleType:
+        """TraCI's constants (libsumo's module and traci's have the same)."""
+        return self._sumo.constants
 
     def collisions(self) -> set[str]:
         """Ids of every vehicle in contact this step: both parties (SUMO may swap them in side hits)."""

@@ -60,11 +60,16 @@ def plot_command(
     title: Annotated[str, typer.Option(help="figure title")] = "",
     net: Annotated[
         Path | None,
-        typer.Option(help="the network (or a bundled scenario's name), for true lane widths", callback=NET),
+        typer.Option(
+            help="the network (or a bundled scenario's name): road positions along it and true lane widths "
+            "[default: the net the FCD's header names, if found]",
+            callback=NET,
+        ),
     ] = None,
 ) -> None:
-    """Time-space diagram and lateral position over time, coloured by behaviour."""
+    """Time-space diagram (by road position) and lateral position over time, coloured by behaviour."""
+    from behaviors.animate import named_net
     from behaviors.plot import plot_fcd  # matplotlib: only when plotting
 
-    plot_fcd(read_fcd(fcd, geo=geo), out, title=title or fcd.name, net=net)
+    plot_fcd(read_fcd(fcd, geo=geo), out, title=title or fcd.name, net=net or named_net(fcd))
     typer.echo(f"wrote {out}")

@@ -222,7 +222,8 @@ def populate_command(
         from behaviors.export import read_fcd
         from behaviors.plot import plot_fcd
 
-        plot_fcd(read_fcd(fcd, geo=geo), plot, title=plot_title(config))
+        road = config.net if config.net.is_file() else None  # road positions along it
+        plot_fcd(read_fcd(fcd, geo=geo), plot, title=plot_title(config), net=road)
         if level >= 0:
             typer.echo(f"plot written to {plot}", err=json_out)
     if summary.cut_short:
