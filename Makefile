@@ -74,7 +74,7 @@ traffic-policy: $(STAMP)
 	$(BIN)/python benchmarks/make_pretrained.py --stages traffic
 
 # the styled driver's policy: the teacher's demonstrations in pieces of 10 episodes, then the fit
-STYLED_SEEDS ?= 1 2 3 4 5 6 7 8
+STYLED_SEEDS ?= 1 2 3 4 5 6 7 21 22 23
 styled-policy: $(STAMP)
 	for s in $(STYLED_SEEDS); do $(BIN)/python benchmarks/make_styled.py --episodes 10 --seed $$s --collect-only || exit 1; done
 	$(BIN)/python benchmarks/make_styled.py --fit-only $(foreach s,$(STYLED_SEEDS),--demos runs/styled/demos_seed$(s).npz)

@@ -60,7 +60,7 @@ FIGURES = (
     Figure("lane_0_share", "rightmost-lane share", 0.2, percent=True),
 )
 GROUPS = (KEEPERS, OVERTAKERS)
-VARIANTS = {"policy": "(a) traffic.pt", "median": "(b) its median action", "rules": "(c) --driver rules"}
+VARIANTS = {"policy": "(a) the policy", "median": "(b) its median action", "rules": "(c) --driver rules"}
 TRAFFIC = {"light": "highway light", "dense": "highway dense"}
 """Our name -> dense_bars.SETTINGS' name."""
 TIMES_NOISE = 3.0
@@ -159,15 +159,17 @@ class Recorder:
     """A policy's act function that keeps a copy of every action it returns (the actor's buffers are
     reused between calls) and each row's behaviour id (1 overtaker)."""
 
-    def __init__(self, act: Act) -> None:
+    def __init__(self, act: Act, behaviour_column: int | None) -> None:
         self.act = act
+        self.column = behaviour_column  # None: the observation holds no behaviour id (a styled policy)
         self.actions: list[np.ndarray] = []
         self.behaviour: list[np.ndarray] = []
 
     def __call__(self, obs: np.ndarray, slots: np.ndarray | None = None) -> np.ndarray:
         out = self.act(obs, slots)
         self.actions.append(np.array(out, np.float32, copy=True))
-        self.behaviour.append(np.asarray(obs)[:, TRAFFIC_SLICES["behaviour"]].ravel().copy())
+        if self.column is not None:
+            self.behaviour.append(np.asarray(obs)[:, self.column].ravel().copy())
         return out
 
     def save(self, path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -181,9 +183,11 @@ def setting(traffic: str) -> Setting:
     return next(s for s in SETTINGS if s.name == TRAFFIC[traffic])
 
 
-def run_config(traffic: str, variant: str, seed: int, duration: float, out: Path) -> PopulateConfig:
+def run_config(
+    traffic: str, variant: str, seed: int, duration: float, out: Path, policy: Path = DEFAULT_POLICY
+) -> PopulateConfig:
     fcd = out / traffic / variant / f"s{seed}" / "fcd.parquet"
-    config = replace(setting(traffic).config(DEFAULT_POLICY, seed, True, fcd), duration=duration)
+    config = replace(setting(traffic).config(policy, seed, True, fcd), duration=duration)
     return replace(config, driver=RULES) if variant == "rules" else config
 
 
@@ -219,31 +223,33 @@ class Traffic:
             self.samples[variant].setdefault(key, []).append(value)
 
 
-def run_traffic(traffic: str, seeds: list[int], duration: float, out: Path) -> Traffic:
+def run_traffic(traffic: str, seeds: list[int], duration: float, out: Path, policy: Path) -> Traffic:
     result = Traffic()
     recorded, behaviours = [], []
     for seed in seeds:
-        config = run_config(traffic, "policy", seed, duration, out)
+        config = run_config(traffic, "policy", seed, duration, out, policy)
         loaded = populate_policy(config)
-        recorder = Recorder(loaded.act)
+        column = TRAFFIC_SLICES["behaviour"].start if loaded.driver == "traffic" else None
+        recorder = Recorder(loaded.act, column)
         result.add("policy", run(config, replace(loaded, act=recorder)))
         actions, behaviour = recorder.save(config.fcd.parent / "actions.npz")
         recorded.append(actions)
         behaviours.append(behaviour)
     actions, behaviour = np.concatenate(recorded), np.concatenate(behaviours)
     result.median = median_action([actions])
-    result.by_behaviour = {
-        g: median_action([actions[(behaviour > 0.5) == (g == OVERTAKERS)]]) for g in GROUPS
-    }
+    if len(behaviour) == len(actions):
+        result.by_behaviour = {
+            g: median_action([actions[(behaviour > 0.5) == (g == OVERTAKERS)]]) for g in GROUPS
+        }
     result.accel_at_one = float((actions[:, 1] >= 0.999).mean()) if len(actions) else math.nan
     result.agent_steps = len(actions)
-    print(f"{traffic}: median action of traffic.pt (steer, accel, brake) = "
+    print(f"{traffic}: median action of {policy.name} (steer, accel, brake) = "
           f"{', '.join(f'{v:.4f}' for v in result.median)}", flush=True)  # fmt: skip
     for seed in seeds:
-        config = run_config(traffic, "median", seed, duration, out)
+        config = run_config(traffic, "median", seed, duration, out, policy)
         result.add("median", run(config, held_constant(populate_policy(config), result.median)))
     for seed in seeds:
-        result.add("rules", run(run_config(traffic, "rules", seed, duration, out), None))
+        result.add("rules", run(run_config(traffic, "rules", seed, duration, out, policy), None))
     return result
 
 
@@ -340,14 +346,18 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=600.0, help="simulated seconds per run")
     parser.add_argument("--out", type=Path, default=Path("runs/ablation"))
     parser.add_argument("--doc", type=Path, default=Path("docs/ablation.md"))
+    parser.add_argument("--policy", type=Path, default=DEFAULT_POLICY, help="the policy of (a) [traffic.pt]")
     args = parser.parse_args()
+    name = args.policy.name
     seeds = [int(s) for s in args.seeds.split(",")]
     started, cpu = time.perf_counter(), time.process_time()  # libsumo: SUMO runs in this process
-    results = {traffic: run_traffic(traffic, seeds, args.duration, args.out) for traffic in TRAFFIC}
+    results = {
+        traffic: run_traffic(traffic, seeds, args.duration, args.out, args.policy) for traffic in TRAFFIC
+    }
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu
     verdicts = {traffic: verdict(r.samples) for traffic, r in results.items()}
     text = "\n\n".join([
-        "### What traffic.pt did in (a)", actions_table(results),
+        f"### What {name} did in (a)", actions_table(results),
         "### The figures, per traffic and behaviour",
         *(figures_table(t, results[t], verdicts[t]) for t in results),
         "### Issue 43's bar: the network makes the behaviour", bars_table(verdicts),
@@ -355,16 +365,17 @@ def main() -> None:
     print(text)
     light, dense = (setting(t) for t in TRAFFIC)
     doc = (
-        "# Who drives: the shipped policy, its median action held constant, and the rules alone\n\n"
+        f"# Who drives: {name}, its median action held constant, and the rules alone\n\n"
         f"Written by `make ablation` (`python benchmarks/ablation.py --seeds {args.seeds} "
-        f"--duration {args.duration:g}`) on commit {commit()}; CPU: {cpu_model()} (`lscpu`); "
+        f"--duration {args.duration:g} --policy {args.policy} --doc {args.doc}`) on commit {commit()}; "
+        f"CPU: {cpu_model()} (`lscpu`); "
         f"the {len(seeds) * len(VARIANTS) * len(TRAFFIC)} runs and their measures took {cpu / 60:.0f} min of "
         f"CPU ({wall / 60:.0f} min wall).\n\n"
         f"The bundled 3-lane, 3 km highway, {args.duration:g} simulated s per run, agents re-inserted as "
         f"they leave, the shield on: light = {light.keepers} keepers + {light.overtakers} overtakers among "
         f"{light.background} SUMO cars, dense = {dense.keepers} + {dense.overtakers} among "
         f"{dense.background}. "
-        "(a) the shipped traffic.pt; (b) every action replaced by the per-dimension median of (a)'s "
+        f"(a) {name}; (b) every action replaced by the per-dimension median of (a)'s "
         "actions in that traffic (all seeds pooled); (c) `--driver rules` (the driver's law and rules, "
         f"the constant action {RULES_ACTION}). Figures: `behave report`'s realism measures on each run's "
         "FCD (each car's first 10 s left out), mean ± sample std over seeds. A figure moves when "

@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--episodes", type=int, default=160)
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--epochs", type=int, default=30)
+    parser.add_argument("--epochs", type=int, default=20)
     parser.add_argument("--runs", type=Path, default=Path("runs/styled"))
     parser.add_argument("--demos", type=Path, action="append", help="demonstrations to fit (repeatable)")
     parser.add_argument("--fit-only", action="store_true", help="fit --demos files; collect nothing")

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -14,7 +16,7 @@ from rich.table import Table
 
 import behaviors
 from behaviors.cli.checks import NET, NON_NEGATIVE, POSITIVE, SEED
-from behaviors.cli.progress import QUIET, VERBOSE, make_progress, verbosity
+from behaviors.cli.progress import PROGRESS_SECONDS, QUIET, VERBOSE, Progress, make_progress, verbosity
 from behaviors.errors import BehaveError
 from behaviors.files import check_output_path
 from sumo_scenarios import get_scenario
@@ -28,6 +30,9 @@ DEFAULTS = SimpleNamespace(
 )  # fmt: skip
 """PopulateConfig's defaults, spelled out so that `--help` needs no torch (a test keeps them equal)."""
 DEFAULT_POLICY = Path(behaviors.__file__).parent / "pretrained" / "traffic.pt"
+DEFAULT_FCD = Path("runs/populate/fcd.xml")
+DEFAULT_JOINED_AGENTS = Path("runs/connect/agents.csv")
+DEFAULT_ORDER = 2  # behaviors.joined.DEFAULT_ORDER, spelled out so that `--help` imports nothing heavy
 
 
 def populate_command(
@@ -135,9 +140,7 @@ def populate_command(
     seed: Annotated[
         int, typer.Option(help="same seed, same traces (byte for byte)", callback=SEED)
     ] = DEFAULTS.seed,
-    fcd: Annotated[Path, typer.Option(help="FCD output: .xml, .csv or .parquet")] = Path(
-        "runs/populate/fcd.xml"
-    ),
+    fcd: Annotated[Path, typer.Option(help="FCD output: .xml, .csv or .parquet")] = DEFAULT_FCD,
     geo: Annotated[bool, typer.Option(help="write lon/lat (the net needs a projection)")] = False,
     keep_count: Annotated[
         bool, typer.Option(help="re-insert vehicles that leave so the counts hold")
@@ -168,6 +171,24 @@ def populate_command(
             "cars grey); needs a display"
         ),
     ] = False,
+    connect: Annotated[
+        str | None,
+        typer.Option(
+            help="HOST:PORT: join a SUMO another program runs (sumo --remote-port PORT --num-clients N) as "
+            "one more TraCI client and drive --share of its passenger cars until it ends; no FCD (SUMO's "
+            "own outputs hold the vehicles): docs/manual/connect.md"
+        ),
+    ] = None,
+    order: Annotated[
+        int, typer.Option(help="with --connect: this client's place in each step (traci.setOrder)")
+    ] = DEFAULT_ORDER,
+    agents_csv: Annotated[
+        Path | None,
+        typer.Option(
+            "--agents",
+            help="with --connect: the per-agent table [default: runs/connect/agents.csv]",
+        ),
+    ] = None,
     quiet: QUIET = False,
     verbose: VERBOSE = False,
 ) -> None:
@@ -178,6 +199,16 @@ def populate_command(
     from behaviors.populate import PopulateInterrupted, config_from, populate, populate_policy
 
     level = verbosity(quiet, verbose)
+    if connect is not None:
+        joined_command(connect, order, agents_csv, fcd, level, json_out, plot, sumocfg, net=net,
+                       share=share, overtaker_fraction=overtaker_fraction, overtakers=overtakers,
+                       keepers=keepers, policy=policy, population=population, driver=driver,
+                       background=background, routes=routes, duration=duration, step_length=step_length,
+                       lateral_resolution=lateral_resolution, outputs=outputs, seed=seed, geo=geo,
+                       keep_count=keep_count, shield=shield, precision=precision, gui=gui)  # fmt: skip
+        return
+    if agents_csv is not None or order != DEFAULT_ORDER:
+        raise BehaveError(f"{'--agents' if agents_csv is not None else '--order'} goes with --connect")
     if sumocfg is not None and share is None and overtakers is None and keepers is None:
         raise BehaveError(
             "--sumocfg needs --share F: the fraction of the scenario's passenger cars the policy drives "
@@ -233,6 +264,82 @@ def populate_command(
             file=sys.stderr,
         )
         sys.exit(130)
+
+
+def joined_command(
+    connect: str,
+    order: int,
+    agents_csv: Path | None,
+    fcd: Path,
+    level: int,
+    json_out: bool,
+    plot: Path | None,
+    sumocfg: Path | None,
+    **given: Any,
+) -> None:
+    """`behave populate --connect HOST:PORT`: join a running SUMO (behaviors.populate.populate_joined)."""
+    from behaviors.populate import PopulateInterrupted, config_from, populate_joined, populate_policy
+
+    for option, value in (("--fcd", fcd != DEFAULT_FCD), ("--plot", plot is not None)):
+        if value:
+            raise BehaveError(
+                f"--connect writes no FCD of its own (SUMO's --fcd-output holds every vehicle): drop {option}"
+            )
+    if sumocfg is not None:
+        raise BehaveError("--connect joins a running simulation: --sumocfg does not apply (SUMO -c runs it)")
+    table = agents_csv if agents_csv is not None else DEFAULT_JOINED_AGENTS
+    config = config_from(None, connect=connect, order=order, agents_csv=table, **given)
+    config.validate()
+    populate_policy(config)  # a policy that cannot drive is one line, before joining
+    progress: Progress | UnboundedProgress = (
+        make_progress("simulating", config.duration, "s", level=level, stderr=json_out)
+        if math.isfinite(config.duration)
+        else UnboundedProgress(level)
+    )
+    try:
+        summary = populate_joined(config, on_step=progress.update, on_status=say(level, "set-up: "))
+    except PopulateInterrupted as stop:
+        summary = stop.summary
+    finally:
+        progress.close()
+    if json_out:
+        import json
+
+        out = {**summary.as_dict(), "agents_csv": str(table), "connect": connect, "order": order}
+        out.update(left_simulation=summary.left_simulation, note=summary.left_note, seed=config.seed)
+        typer.echo(json.dumps(out))
+    elif level >= 0:
+        Console().print(summary_table(summary, f"behave populate --connect {connect}, seed {config.seed}"))
+    if level >= 0:
+        typer.echo(f"per-agent table written to {table}", err=json_out)
+    if level > 0:
+        for name, seconds in summary.phases.items():
+            typer.echo(f"phase {name}: {seconds:,.2f} s of {summary.wall_s:,.2f} s wall", err=True)
+    print(f"behave: {summary.left_note}", file=sys.stderr)
+    if summary.cut_short:
+        sys.exit(130)
+
+
+class UnboundedProgress:
+    """Progress of a run with no known end (a joined simulation runs until it ends): a line on stderr
+    every PROGRESS_SECONDS of wall time, nothing when quiet."""
+
+    def __init__(self, level: int) -> None:
+        self.level, self.start = level, time.monotonic()
+        self.last = self.start
+
+    def update(self, done: float, detail: str = "") -> None:
+        now = time.monotonic()
+        if self.level >= 0 and now - self.last >= PROGRESS_SECONDS:
+            print(
+                f"simulating: {done:,.0f} s so far, {now - self.start:,.0f} s elapsed",
+                file=sys.stderr,
+                flush=True,
+            )
+            self.last = now
+
+    def close(self) -> None:
+        pass
 
 
 def say(level: int, prefix: str) -> Callable[[str], None] | None:

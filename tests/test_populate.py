@@ -16,6 +16,7 @@ from behaviors.actuation import LaneDriving
 from behaviors.agents_table import INCIDENT_COLUMNS, agents_path, columns
 from behaviors.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.ddpg.networks import Actor
+from behaviors.drivers import STYLED_OBS_SIZE
 from behaviors.errors import BehaveError
 from behaviors.export import read_fcd, validate_fcd_xml
 from behaviors.lanes import TRAFFIC_OBS_SIZE
@@ -213,7 +214,9 @@ def test_bundled_policies_load_and_match_their_behaviours():
     traffic = load_checkpoint(PRETRAINED / "traffic.pt").meta  # populate's default
     assert traffic["obs_dim"] == TRAFFIC_OBS_SIZE and traffic["behaviour"] == "multi"
     assert traffic["observation_layout"].startswith("traffic:")
-    assert (PRETRAINED / "MODEL_CARD.md").read_text().count("\n## ") == 4
+    styled = load_checkpoint(PRETRAINED / "styled.pt").meta
+    assert styled["driver"] == "styled" and styled["obs_dim"] == STYLED_OBS_SIZE
+    assert (PRETRAINED / "MODEL_CARD.md").read_text().count("\n## ") == 5
 
 
 @pytest.mark.sumo

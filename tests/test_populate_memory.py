@@ -19,12 +19,13 @@ from behaviors.populate import (
     PopulateSummary,
     write_agents_csv,
 )
+from behaviors.styles import unstyled
 
 
 def end_agents(log: AgentLog, first: int, count: int, time: float) -> None:
     """`count` agents join, drive a step and end: every third by a collision with an incident."""
     ids = [f"keeper_{k}" for k in range(first, first + count)]
-    log.join(ids, ["keeper"] * count, time)
+    log.join(ids, ["keeper"] * count, time, unstyled(np.full(count, 0.9)))
     driving = len(log.ids) - count  # agents already on the road drive on
     log.observe(np.ones(len(log.ids), bool), np.full(len(log.ids), 20.0))
     reasons = np.array([""] * driving + ["collision" if k % 3 == 0 else "arrived" for k in range(count)])
@@ -53,7 +54,7 @@ def test_ended_agents_do_not_stay_in_memory() -> None:
 def test_the_agents_table_holds_the_ended_rows_in_order_then_those_driving(tmp_path: Path) -> None:
     log = AgentLog(0.2, "traffic")
     end_agents(log, 0, 4, 0.0)
-    log.join(["overtaker_9"], ["overtaker"], 3.0)
+    log.join(["overtaker_9"], ["overtaker"], 3.0, unstyled(np.full(1, 1.05)))
     end_agents(log, 4, 2, 5.0)
     driving = log.driving(7.0)
     path = tmp_path / "fcd.agents.csv"
@@ -63,7 +64,8 @@ def test_the_agents_table_holds_the_ended_rows_in_order_then_those_driving(tmp_p
     assert [r[0] for r in rows[1:]] == [f"keeper_{k}" for k in range(6)] + ["overtaker_9"]
     reasons = ["collision", "arrived", "arrived", "collision", "collision", "arrived", "still_driving"]
     assert [r[6] for r in rows[1:]] == reasons
-    assert rows[1][10:] == ["left", "e0_1", "0.4", "background_1", "20.0", "18.5", "", "0.31"]
+    assert rows[1][10:18] == ["left", "e0_1", "0.4", "background_1", "20.0", "18.5", "", "0.31"]
+    assert rows[1][18:] == ["0.9", "", "", ""]  # the style drawn: a speed factor alone (no styles)
     # the same bytes as writing the rows straight from memory
     expected = io.StringIO()
     writer = csv.writer(expected, lineterminator="\n")
@@ -81,9 +83,10 @@ def test_the_agents_table_holds_the_ended_rows_in_order_then_those_driving(tmp_p
 
 
 def read_back(rows: list[list[str]]) -> list[AgentRow]:
-    """AgentRows from CSV cells (mean speed derived; the incident as text: cells() writes text as it is)."""
+    """AgentRows from CSV cells (mean speed derived; the incident and style as text: cells() writes text
+    as it is)."""
     return [
         AgentRow(r[0], r[1], r[2], r[3], float(r[4]), float(r[5]), r[6], float(r[7]), float(r[9]),
-                 Incident(*r[10:]))  # type: ignore[arg-type]
+                 Incident(*r[10:18]), tuple(r[18:]))  # type: ignore[arg-type]
         for r in rows
     ]  # fmt: skip
