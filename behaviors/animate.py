@@ -1,8 +1,11 @@
 """Top-down animation of an FCD file (`behave animate`): the road from the net, every vehicle as a
-box, learned cars coloured by behaviour as `behave plot` colours them, a time stamp per frame.
+box of its vType's size (behaviors/vtypes.py), learned cars coloured by behaviour as `behave plot`
+colours them and SUMO's by class, a time stamp per frame.
 
 One frame per `every` seconds of FCD time, showing each vehicle's last record at or before that
-instant. GIF goes through Pillow (frames kept as 8-bit palette images, a quarter of RGBA's
+instant. A road so long that a car would be a speck in the whole view (MIN_CAR_PX) is followed: the
+view, AUTO_WINDOW_M wide, stays on a learned car (another once it leaves). `follow` draws while its
+vehicle is in the FCD. GIF goes through Pillow (frames kept as 8-bit palette images, a quarter of RGBA's
 memory); MP4 through ffmpeg, where matplotlib finds one. Written to a temp file and renamed.
 """
 
@@ -13,7 +16,7 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -27,8 +30,19 @@ if TYPE_CHECKING:
 
 ANIMATION_SUFFIXES = (".gif", ".mp4")
 CAR_LENGTH, CAR_WIDTH = 5.0, 1.8
-"""m: FCD records no vehicle sizes; behave's cars (and most passenger cars) are about this."""
+"""m: a passenger car's size (SUMO's default, behave's cars'); other vehicles are drawn at their own."""
 FIGURE_WIDTH_IN, DPI = 8.0, 100
+MIN_CAR_PX = 4.0
+"""Pixels a car's length must take in the whole view, or the view follows the action (a 4.5 km road
+at 800 pixels drew cars of 0.9 px, specks)."""
+AUTO_WINDOW_M = 250.0
+"""m: the width of the view that follows the action (a car 16 px long at 800 px)."""
+CLASS_STYLES = {  # SUMO's vehicles by vClass -> (legend label, colour); other classes are SUMO cars
+    "truck": ("SUMO lorry", "tab:brown"), "trailer": ("SUMO lorry", "tab:brown"),
+    "bus": ("SUMO bus or coach", "tab:purple"), "coach": ("SUMO bus or coach", "tab:purple"),
+    "delivery": ("SUMO van", "tab:olive"), "motorcycle": ("SUMO two-wheeler", "tab:pink"),
+    "moped": ("SUMO two-wheeler", "tab:pink"), "bicycle": ("SUMO two-wheeler", "tab:pink"),
+}  # fmt: skip
 MARGIN_M = 10.0
 NET_NAME = re.compile(r"<!-- behave populate: net=(\S+)")
 SUMO_NET_FILE = re.compile(r'<net-file value="([^"]+)"')
@@ -43,6 +57,8 @@ class AnimateOptions:
     window: float = 200.0  # m: the width of the followed view
     net: Path | None = None  # None: the net the FCD names, if it can be found
     geo: bool = False  # the FCD holds lon/lat
+    whole: bool = False  # the whole road however long (else a long road is followed: MIN_CAR_PX)
+    sumocfg: Path | None = None  # whose route and additional files define the vTypes (sizes, classes)
 
     def validate(self) -> None:
         for name in ("every", "fps", "window"):
@@ -102,15 +118,17 @@ def car_boxes(
     x: np.ndarray,
     y: np.ndarray,
     angle: np.ndarray,
-    length: float,
-    width: float,
+    length: float | np.ndarray,
+    width: float | np.ndarray,
     scale: tuple[float, float] = (1.0, 1.0),
 ) -> np.ndarray:
-    """[N, 4, 2] corners of each car from SUMO's front-bumper position and angle (degrees clockwise
-    from north); `scale` turns the metre offsets into the coordinates' units (degrees of lon/lat)."""
+    """[N, 4, 2] corners of each vehicle from SUMO's front-bumper position and angle (degrees clockwise
+    from north), `length` and `width` one for all or [N]; `scale` turns the metre offsets into the
+    coordinates' units (degrees of lon/lat)."""
     heading = np.radians(angle)
     ahead = np.stack([np.sin(heading), np.cos(heading)], axis=1)
     right = np.stack([np.cos(heading), -np.sin(heading)], axis=1)
+    length, width = np.asarray(length, float)[..., None], np.asarray(width, float)[..., None]
     half = width / 2 * right
     offsets = np.stack([half, -half, -half - length * ahead, half - length * ahead], axis=1)
     return np.stack([x, y], axis=1)[:, None, :] + offsets * np.asarray(scale)
@@ -120,6 +138,40 @@ def follow_centres(times: np.ndarray, xy: np.ndarray, instants: np.ndarray) -> n
     """[F, 2] the followed car's position at each instant; before it enters the view waits where it
     enters, after it leaves the view stays where it left."""
     return np.stack([np.interp(instants, times, xy[:, 0]), np.interp(instants, times, xy[:, 1])], axis=1)
+
+
+def follow_the_action(
+    ids: np.ndarray,
+    xy: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    shown: np.ndarray,
+    preferred: np.ndarray,
+) -> tuple[np.ndarray, list[str | None]]:
+    """([F, 2] view centres, the vehicle followed per frame) for frames showing FCD steps `shown`
+    (rows starts[s]:ends[s] of `ids`/`xy`): the view stays on one vehicle while it is there, then takes
+    the one present that stays longest, among the `preferred` rows' vehicles (the learned cars) if any
+    is there. A frame with no vehicle keeps the last centre."""
+    names = [str(vid) for vid in ids.tolist()]
+    last_seen: dict[str, int] = {}
+    for step in range(len(starts)):
+        for vid in names[starts[step] : ends[step]]:
+            last_seen[vid] = step
+    centres = np.zeros((len(shown), 2))
+    followed: list[str | None] = []
+    current: str | None = None
+    centre = np.nanmean(xy, axis=0)
+    for k, step in enumerate(shown.tolist()):
+        rows = range(starts[step], ends[step])
+        here = {names[r]: r for r in rows}
+        if current not in here and here:
+            pool = [r for r in rows if preferred[r]] or list(rows)
+            current = names[max(pool, key=lambda r: (last_seen[names[r]], -r))]
+        if current in here:
+            centre = xy[here[current]]
+        centres[k] = centre
+        followed.append(current if current in here else None)
+    return centres, followed
 
 
 def fit_view(
@@ -192,17 +244,52 @@ def distinct_points(points: np.ndarray) -> np.ndarray:
     return points[keep]
 
 
-def vehicle_colours(df: pd.DataFrame) -> tuple[np.ndarray, dict[str, str]]:
+def vehicle_colours(df: pd.DataFrame, classes: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, str]]:
     """Each record's colour by its own vType (an agent SUMO drives for a while keeps its colour; a
-    scenario car `--share` converted changes colour as it becomes an agent), and the legend."""
+    scenario car `--share` converted changes colour as it becomes an agent), SUMO's vehicles by their
+    vClass (`classes`, one per record; CLASS_STYLES), and the legend."""
+    import pandas as pd
+
     from behaviors.plot import GROUP_STYLES, SUMO_CAR
     from behaviors.realism import group_names
 
-    groups = group_names(df["id"], df["type"], "type")
-    styles = {group: GROUP_STYLES.get(group, SUMO_CAR) for group in groups.unique()}
-    colours = groups.map(lambda group: styles[group][1]).to_numpy(dtype=object)
+    groups = group_names(df["id"], df["type"], "type").to_numpy(dtype=object)
+    if classes is None:
+        classes = np.full(len(df), "passenger", dtype=object)
+    pairs = pd.Series(list(zip(groups.tolist(), classes.tolist(), strict=True)), dtype=object)
+    styles = {
+        pair: GROUP_STYLES.get(pair[0]) or CLASS_STYLES.get(pair[1], SUMO_CAR) for pair in pairs.unique()
+    }
+    colours = pairs.map(lambda pair: styles[pair][1]).to_numpy(dtype=object)
     legend = dict(sorted({label: colour for label, colour in styles.values()}.items()))
     return colours, legend
+
+
+def vehicle_kinds(df: pd.DataFrame, files: list[Path]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per record: length, width (m) and vClass of its vType, as `files` define it (vtypes.kind_of)."""
+    from behaviors.vtypes import kind_of, read_vtypes
+
+    known = read_vtypes(files)
+    types = df["type"].astype(str).fillna("")
+    kinds = {vtype: kind_of(vtype, known) for vtype in types.unique()}
+    length = types.map(lambda v: kinds[v].length).to_numpy(float)
+    width = types.map(lambda v: kinds[v].width).to_numpy(float)
+    return length, width, types.map(lambda v: kinds[v].vclass).to_numpy(dtype=object)
+
+
+def vtype_files(fcd: Path, sumocfg: Path | None) -> list[Path]:
+    """Where the FCD's vTypes are defined: behave's own, the files its header names, and `sumocfg`'s
+    route and additional files (read in this order: a later definition wins)."""
+    from behaviors.scenario_config import read_sumocfg
+    from behaviors.vtypes import files_named_by
+    from sumo_scenarios import data_dir
+    from sumo_scenarios.build import VTYPES_FILE
+
+    files = [data_dir() / "common" / VTYPES_FILE, *files_named_by(fcd)]
+    if sumocfg is not None:
+        scenario = read_sumocfg(sumocfg)
+        files += [*scenario.routes, *scenario.additional]
+    return files
 
 
 def animate_fcd(
@@ -233,42 +320,64 @@ def animate_fcd(
     times = df["time"].to_numpy()
     steps, starts = np.unique(times, return_index=True)
     ends = np.append(starts[1:], len(times))
-    instants = frame_times(float(steps[0]), float(steps[-1]), options.every)
-    shown = step_at(steps, instants)
     xy = df[[xcol, ycol]].to_numpy(float)
     angle = df["angle"].fillna(90.0).to_numpy(float)
-    colours, legend = vehicle_colours(df)
+    length, width, classes = vehicle_kinds(df, vtype_files(fcd, options.sumocfg))
+    colours, legend = vehicle_colours(df, classes)
     ids = df["id"].to_numpy(dtype=object)
-    centres = None
-    if options.follow is not None:
-        mine = ids == options.follow
+    geo = xcol == "lon"
+    shapes = road_shapes(net) if net is not None else ([], [], [])
+    scale = _degree_scale(xy) if geo else (1.0, 1.0)
+    view = whole_view(xy, shapes, geo)
+    first, last = float(steps[0]), float(steps[-1])
+    follow, auto = options.follow, False
+    if follow is not None:
+        mine = ids == follow
         if not mine.any():
             sample = ", ".join(sorted(set(ids.tolist()))[:5])
-            raise BehaveError(f"--follow {options.follow}: no such vehicle in {fcd} (it has {sample}, ...)")
-        centres = follow_centres(times[mine], xy[mine], instants)
-    shapes = road_shapes(net) if net is not None else ([], [], [])
-    figure, axes = _figure(xy, shapes, options, geo=xcol == "lon")
-    _legend(axes, legend, options.follow)
+            raise BehaveError(f"--follow {follow}: no such vehicle in {fcd} (it has {sample}, ...)")
+        first, last = float(times[mine].min()), float(times[mine].max())
+        if (first, last) != (float(steps[0]), float(steps[-1])):
+            _say(on_status, f"following {follow}: frames from t = {first:g} to {last:g} s, while it is in "
+                 f"the FCD (which runs from {steps[0]:g} to {steps[-1]:g} s)")  # fmt: skip
+    elif not options.whole:
+        pixels = FIGURE_WIDTH_IN * DPI * CAR_LENGTH / view.width_m(scale)
+        auto = pixels < MIN_CAR_PX
+        if auto:
+            _say(on_status, f"the road is {view.width_m(scale) / 1000:.1f} km across: a {CAR_LENGTH:g} m car "
+                 f"would be {pixels:.1f} px long in the whole view; the view follows the learned cars "
+                 f"{AUTO_WINDOW_M:g} m wide (--whole: the whole road; --follow ID: one vehicle)")  # fmt: skip
+    instants = frame_times(first, last, options.every)
+    shown = step_at(steps, instants)
+    centres, followed, window = None, [follow] * len(instants), options.window
+    if follow is not None:
+        centres = follow_centres(times[ids == follow], xy[ids == follow], instants)
+    elif auto:
+        from behaviors.plot import GROUP_STYLES
+
+        learned = np.isin(colours, [colour for _, colour in GROUP_STYLES.values()])
+        centres, followed = follow_the_action(ids, xy, starts, ends, shown, learned)
+        window = AUTO_WINDOW_M
+    figure, axes = _figure(view, shapes, geo, 1.0 if follow is not None else view.ratio)
+    _legend(axes, legend, follow, auto, wide=follow is None and view.ratio < 0.5)
     from matplotlib.collections import PolyCollection
 
     cars = PolyCollection([], edgecolors="black", linewidths=0.3, zorder=3)
     axes.add_collection(cars)
     stamp = axes.text(0.01, 0.98, "", transform=axes.transAxes, va="top", ha="left", zorder=5,
                       bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})  # fmt: skip
-    scale = _degree_scale(xy) if xcol == "lon" else (1.0, 1.0)
     writer = movie_writer(out, options.fps)
     with atomic_path(out) as tmp, writer.saving(figure, str(tmp), DPI):
         for k, (instant, step) in enumerate(zip(instants.tolist(), shown.tolist(), strict=True)):
             rows = slice(starts[step], ends[step])
-            boxes = car_boxes(
-                xy[rows, 0], xy[rows, 1], angle[rows], CAR_LENGTH * scale[0], CAR_WIDTH * scale[1]
-            )
+            boxes = car_boxes(xy[rows, 0], xy[rows, 1], angle[rows], length[rows] * scale[0],
+                              width[rows] * scale[1])  # fmt: skip
             cars.set_verts(list(boxes))
             cars.set_facecolor(list(colours[rows]))
-            cars.set_linewidth(np.where(ids[rows] == options.follow, 1.5, 0.3).tolist())
+            cars.set_linewidth(np.where(ids[rows] == followed[k], 1.5, 0.3).tolist())
             stamp.set_text(time_label(instant, options.every))
             if centres is not None:
-                _centre_on(axes, centres[k], options.window, scale)
+                _centre_on(axes, centres[k], window, scale, 1.0 if follow is not None else view.ratio)
             writer.grab_frame()
             if on_frame:
                 on_frame(k + 1, len(instants))
@@ -298,26 +407,46 @@ def _degree_scale(xy: np.ndarray) -> tuple[float, float]:
     return 1 / (metres * max(math.cos(lat), 1e-6)), 1 / metres
 
 
-def _figure(
-    xy: np.ndarray,
-    shapes: tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]],
-    options: AnimateOptions,
-    geo: bool,
-) -> tuple[Figure, Axes]:
-    """The figure with the road drawn once; its shape follows the area shown (the net's and the
-    records', or the followed window)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.collections import LineCollection, PolyCollection
-    from matplotlib.figure import Figure
+@dataclass(frozen=True)
+class View:
+    """The whole area: the net's and the records' (`fit_view`'s limits and height/width ratio)."""
 
-    surfaces, markings, edges = shapes
+    low: np.ndarray
+    high: np.ndarray
+    ratio: float
+    x_scale: float  # the length of an x unit in y units (cos(latitude) for lon/lat)
+
+    def width_m(self, scale: tuple[float, float]) -> float:
+        """The width in metres (`scale`: the coordinates' units per metre, as _degree_scale)."""
+        return float(self.high[0] - self.low[0]) / scale[0]
+
+
+def whole_view(
+    xy: np.ndarray, shapes: tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]], geo: bool
+) -> View:
+    surfaces = shapes[0]
     points = np.concatenate([xy, *surfaces]) if surfaces else xy
     low, high = np.nanmin(points, axis=0), np.nanmax(points, axis=0)
     margin = 0.0 if geo else MARGIN_M
     x_scale = math.cos(math.radians(float(np.nanmean(xy[:, 1])))) if geo else 1.0
     low, high, ratio = fit_view(low - margin, high + margin, x_scale)
-    if options.follow:
-        ratio = 1.0
+    return View(low, high, ratio, x_scale)
+
+
+def _figure(
+    view: View,
+    shapes: tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]],
+    geo: bool,
+    ratio: float,
+) -> tuple[Figure, Axes]:
+    """The figure with the road drawn once, `ratio` high for its width (the whole view's, or a
+    followed window's)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import LineCollection, PolyCollection
+    from matplotlib.figure import Figure
+
+    surfaces, markings, edges = shapes
+    low, high, x_scale = view.low, view.high, view.x_scale
     size = (FIGURE_WIDTH_IN, round(FIGURE_WIDTH_IN * ratio, 2))
     figure = Figure(figsize=size, dpi=DPI, layout="constrained")
     FigureCanvasAgg(figure)
@@ -335,17 +464,27 @@ def _figure(
     return figure, axes
 
 
-def _legend(axes: Axes, legend: dict[str, str], follow: str | None) -> None:
+def _legend(
+    axes: Axes, legend: dict[str, str], follow: str | None, auto: bool = False, wide: bool = False
+) -> None:
+    """The legend; `wide` (a strip of a figure): in one row, so as not to hide the road."""
     from matplotlib.patches import Patch
 
     handles = [Patch(facecolor=colour, edgecolor="black", label=label) for label, colour in legend.items()]
-    if follow is not None:
-        handles.append(Patch(facecolor="none", edgecolor="black", linewidth=1.5, label=f"followed: {follow}"))
-    axes.legend(handles=handles, loc="upper right", fontsize="small", framealpha=0.9)
+    if follow is not None or auto:
+        label = f"followed: {follow}" if follow is not None else "followed (the view follows it)"
+        handles.append(Patch(facecolor="none", edgecolor="black", linewidth=1.5, label=label))
+    where: Literal["lower center", "upper right"] = "lower center" if wide else "upper right"
+    axes.legend(
+        handles=handles, loc=where, fontsize="small", framealpha=0.9, ncols=len(handles) if wide else 1
+    )
 
 
-def _centre_on(axes: Axes, centre: np.ndarray, window: float, scale: tuple[float, float]) -> None:
-    half_x, half_y = window / 2 * scale[0], window / 2 * scale[1]
+def _centre_on(
+    axes: Axes, centre: np.ndarray, window: float, scale: tuple[float, float], ratio: float = 1.0
+) -> None:
+    """The view `window` metres wide and `ratio` as high about `centre`."""
+    half_x, half_y = window / 2 * scale[0], window * ratio / 2 * scale[1]
     axes.set_xlim(centre[0] - half_x, centre[0] + half_x)
     axes.set_ylim(centre[1] - half_y, centre[1] + half_y)
 

@@ -21,8 +21,16 @@ def animate_command(
     ] = 1.0,
     fps: Annotated[int, typer.Option(help="frames per second when played", callback=POSITIVE)] = 10,
     follow: Annotated[
-        str | None, typer.Option(help="a vehicle id: the view follows it (--window metres wide)")
+        str | None,
+        typer.Option(help="a vehicle id: the view follows it (--window metres wide) while it is in the FCD"),
     ] = None,
+    whole: Annotated[
+        bool,
+        typer.Option(
+            help="draw the whole road however long (else, where a car would be under 4 px, the view "
+            "follows the learned cars)"
+        ),
+    ] = False,
     window: Annotated[
         float, typer.Option(help="metres shown around the vehicle of --follow", callback=POSITIVE)
     ] = 200.0,
@@ -35,6 +43,13 @@ def animate_command(
         ),
     ] = None,
     geo: Annotated[bool, typer.Option(help="the FCD holds lon/lat")] = False,
+    sumocfg: Annotated[
+        Path | None,
+        typer.Option(
+            help="the scenario whose route and additional files define the vTypes: vehicles drawn at their "
+            "size and class [default: the files the FCD's header names, behave's vTypes, vClass defaults]"
+        ),
+    ] = None,
     quiet: QUIET = False,
     verbose: VERBOSE = False,
 ) -> None:
@@ -42,7 +57,9 @@ def animate_command(
     from behaviors.animate import AnimateOptions, animate_fcd  # matplotlib: only when drawing
 
     level = verbosity(quiet, verbose)
-    options = AnimateOptions(every=every, fps=fps, follow=follow, window=window, net=net, geo=geo)
+    options = AnimateOptions(
+        every=every, fps=fps, follow=follow, window=window, net=net, geo=geo, whole=whole, sumocfg=sumocfg
+    )
     progress = None
 
     def on_frame(done: int, total: int) -> None:

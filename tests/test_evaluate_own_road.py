@@ -90,6 +90,7 @@ def test_evaluate_on_a_users_net_and_sumocfg(tmp_path: Path, motorway: OsmLikeNe
         assert table["agents"].tolist() == [2] and table["steps"].tolist() == [10]
 
 
+@pytest.mark.sumo  # a `behave evaluate` that stops before SUMO: seconds of imports (helpers.py)
 def test_evaluate_road_options_are_checked_before_anything_runs(tmp_path: Path) -> None:
     net, cfg = tmp_path / "n.net.xml", tmp_path / "s.sumocfg"
     with pytest.raises(BehaveError, match="--net and --sumocfg both name a network"):
