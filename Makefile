@@ -10,7 +10,7 @@ PIP_FLAGS := --disable-pip-version-check -q -c constraints.txt
 SEED ?= 0
 WORKERS ?= 1
 
-.PHONY: setup run test test-fast typecheck lint bench bench-scale soak learn-check pretrained traffic-policy paper realism own-nets dense flow ablation people styled-policy styles clean
+.PHONY: setup run test test-fast typecheck lint bench bench-scale soak learn-check pretrained traffic-policy paper realism own-nets dense flow ablation people styled-policy styles ramp clean
 
 setup: $(DEV_STAMP)
 
@@ -108,6 +108,12 @@ people: $(STAMP)
 
 paper: $(STAMP)
 	$(BIN)/python benchmarks/paper.py --seed $(SEED)
+
+# lane drops, ramps and long vehicles (issue 44): a user's 3-lane motorway with an on-ramp and a work zone
+# (cars, lorries, vans) at shares 0-1 and a 3-lane one with lorries and coaches, seeds 0-1, collisions and
+# who stood 30 s (about 20 min of one core); writes its section of docs/ramp.md
+ramp: $(STAMP)
+	$(BIN)/python benchmarks/ramp_bars.py --seeds 0,1 --jobs 2
 
 clean:
 	rm -rf $(VENV) runs build *.egg-info
