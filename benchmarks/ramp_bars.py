@@ -205,7 +205,6 @@ class Run:
     summary: dict[str, float]
     collisions: int  # SUMO's collision output
     passed_per_h: float
-    cpu_s: float
     wall_s: float
 
     @property
@@ -243,16 +242,15 @@ def run_one(
     command = [str(behave), "populate", "--sumocfg", str(sumocfg), "--share", f"{share:g}",
                "--seed", str(seed), "--duration", f"{args.duration:g}", "--fcd", str(fcd),
                "--json", "--quiet"]  # fmt: skip
-    before, started = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+    started = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True)
-    after, wall = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter() - started
+    wall = time.perf_counter() - started
     if done.returncode != 0:
         raise SystemExit(f"{' '.join(command)} failed ({done.returncode}):\n{done.stderr.strip()}")
     summary = json.loads(done.stdout)
     (folder / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
-    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime  # approximate with --jobs > 1
     out = Run(scenario.name, share, seed, summary, sumo_collisions(folder / "collisions.xml"),
-              passed(fcd, scenario.past) * 3600 / args.duration, cpu, wall)  # fmt: skip
+              passed(fcd, scenario.past) * 3600 / args.duration, wall)  # fmt: skip
     agents, sumo = out.standing
     print(f"  {scenario.name} share {share:g} seed {seed}: {out.collisions} collisions, "
           f"{agents}+{sumo} standing {STANDING_S} s, longest {out.longest:.0f} s, {wall:.0f} s wall",
@@ -319,7 +317,7 @@ def main() -> None:
     seeds = [int(s) for s in args.seeds.split(",")]
     shares = [float(s) for s in args.shares.split(",")]
     chosen = [SCENARIOS[name] for name in args.scenarios.split(",")]
-    started = time.perf_counter()
+    before, started = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
     work = []
     for scenario in chosen:
         folder = args.out / scenario.name / "road"
@@ -333,7 +331,8 @@ def main() -> None:
     with ThreadPoolExecutor(max(1, args.jobs)) as pool:
         runs = list(pool.map(lambda w: run_one(w[0], w[1], w[2], args, w[3]), work))
     wall = time.perf_counter() - started
-    cpu = sum(r.cpu_s for r in runs)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)  # every run's, reaped: --jobs counts once
+    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
     text = table(runs)
     print(text)
     judged = [r for r in runs if r.share == 0 or r.share in SCENARIOS[r.scenario].bar_shares]
