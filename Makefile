@@ -51,6 +51,7 @@ bench: $(STAMP)
 	$(BIN)/pip install $(PIP_FLAGS) -e '.[bench]'
 	$(BIN)/python benchmarks/bench_env.py
 	$(BIN)/python benchmarks/bench_populate.py
+	$(BIN)/python benchmarks/bench_connect.py
 
 # issue 25's rows at scale: under load, N populates at once, 10,000 agents (tens of minutes)
 bench-scale: $(STAMP)

@@ -120,6 +120,7 @@ class PopulateConfig:
     connect: str | None = None  # HOST:PORT: join that running SUMO as a TraCI client (populate_joined)
     order: int = 2  # with connect: this client's place in each step (traci.setOrder)
     agents_csv: Path | None = None  # the agents table; None: beside the FCD (fcd.agents.csv)
+    leave_alone: tuple[str, ...] = ()  # with connect: vehicle id prefixes never drawn (another client's)
 
     @property
     def has_agents(self) -> bool:
@@ -151,6 +152,8 @@ class PopulateConfig:
         for name in ("share", "overtaker_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise BehaveError(f"{name.replace('_', ' ')} must be in [0, 1], got {getattr(self, name)}")
+        if self.leave_alone and self.connect is None:
+            raise BehaveError("--leave-alone names another client's vehicles: it goes with --connect")
         if self.connect is not None:
             self._validate_joined()
         elif self.share > 0 and self.sumocfg is None:
@@ -780,7 +783,7 @@ class Population:
         vehicle type, SUMO's checks off, into the fleet. The rest stay SUMO's, untouched."""
         sim, c = self.sim, self.config
         assert sim is not None
-        cars = [v for v in departed if sim.vehicle_class(v) == CAR_CLASS]
+        cars = [v for v in departed if sim.vehicle_class(v) == CAR_CLASS and not v.startswith(c.leave_alone)]
         draws = {v: share_draw(c.seed, v) for v in cars}
         drawn = [v for v in cars if draws[v] < c.share]
         agents = [v for v in drawn if car_sized(*sim.vehicle_size(v))]  # a bus typed passenger stays SUMO's

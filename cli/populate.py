@@ -189,6 +189,13 @@ def populate_command(
             help="with --connect: the per-agent table [default: runs/connect/agents.csv]",
         ),
     ] = None,
+    leave_alone: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="with --connect: never draw vehicles whose id starts with this (another client's, as "
+            "CARLA's 'carla'); repeatable"
+        ),
+    ] = None,
     quiet: QUIET = False,
     verbose: VERBOSE = False,
 ) -> None:
@@ -205,10 +212,13 @@ def populate_command(
                        keepers=keepers, policy=policy, population=population, driver=driver,
                        background=background, routes=routes, duration=duration, step_length=step_length,
                        lateral_resolution=lateral_resolution, outputs=outputs, seed=seed, geo=geo,
-                       keep_count=keep_count, shield=shield, precision=precision, gui=gui)  # fmt: skip
+                       keep_count=keep_count, shield=shield, precision=precision, gui=gui,
+                       leave_alone=tuple(leave_alone) if leave_alone else None)  # fmt: skip
         return
-    if agents_csv is not None or order != DEFAULT_ORDER:
-        raise BehaveError(f"{'--agents' if agents_csv is not None else '--order'} goes with --connect")
+    for option, given in (("--agents", agents_csv is not None), ("--order", order != DEFAULT_ORDER),
+                          ("--leave-alone", bool(leave_alone))):  # fmt: skip
+        if given:
+            raise BehaveError(f"{option} goes with --connect")
     if sumocfg is not None and share is None and overtakers is None and keepers is None:
         raise BehaveError(
             "--sumocfg needs --share F: the fraction of the scenario's passenger cars the policy drives "

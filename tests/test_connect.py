@@ -26,20 +26,31 @@ from behaviors.sumo_home import sumo_binary
 AGENT_TYPES = {"behave_keeper", "behave_overtaker"}
 USER_SCRIPT = """
 import sys, time, traci
-port, log, pause = int(sys.argv[1]), sys.argv[2], float(sys.argv[3])
+import traci.constants as tc
+port, log, pause, subscribe = int(sys.argv[1]), sys.argv[2], float(sys.argv[3]), sys.argv[4] == "1"
 traci.init(port)
 traci.setOrder(1)
+if subscribe:  # subscriptions of its own, which SUMO shares with every client
+    traci.edge.subscribe("e1", [tc.LAST_STEP_VEHICLE_NUMBER])
+    traci.simulation.subscribe([tc.VAR_TIME, tc.VAR_LOADED_VEHICLES_NUMBER])
 steps = 0
 while traci.simulation.getMinExpectedNumber() > 0:
     traci.simulationStep()
     steps += 1
+    for vid in traci.simulation.getDepartedIDList() if subscribe else ():
+        traci.vehicle.subscribe(vid, [tc.VAR_ANGLE, tc.VAR_ROAD_ID])
+        if vid == "car.2":
+            traci.vehicle.subscribeContext(vid, tc.CMD_GET_VEHICLE_VARIABLE, 30.0, [tc.VAR_SPEED])
+    if subscribe:
+        assert traci.edge.getSubscriptionResults("e1")[tc.LAST_STEP_VEHICLE_NUMBER] >= 0
     if steps % 10 == 0:
         open(log, "w").write(str(steps))
     time.sleep(pause)
 open(log, "w").write(f"done {steps} {traci.simulation.getTime():g}")
 traci.close()
 """
-"""A user's TraCI script, the simulation's owner: order 1, steps until no vehicle is left, then closes."""
+"""A user's TraCI script, the simulation's owner: order 1, steps until no vehicle is left, then closes;
+with `subscribe`, subscriptions of its own (a vehicle's, an edge's, a context)."""
 
 
 def free_port() -> int:
@@ -87,12 +98,14 @@ def start_sumo(cfg: Path, port: int, clients: int, *, gui: bool = False) -> subp
     return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
-def start_user_script(folder: Path, port: int, pause: float = 0.0) -> subprocess.Popen[str]:
+def start_user_script(
+    folder: Path, port: int, pause: float = 0.0, subscribe: bool = False
+) -> subprocess.Popen[str]:
     script = folder / "owner.py"
     script.write_text(USER_SCRIPT)
     log = folder / "owner.log"
     return subprocess.Popen(
-        [sys.executable, str(script), str(port), str(log), str(pause)],
+        [sys.executable, str(script), str(port), str(log), str(pause), str(int(subscribe))],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
 
@@ -217,17 +230,24 @@ def test_ctrl_c_hands_the_agents_back_and_leaves_sumo_and_the_other_client_runni
 
 @pytest.mark.sumo
 def test_duration_leaves_after_that_long_and_the_owner_runs_to_its_end(tmp_path):
+    """Also: the owner's own subscriptions (SUMO shares every client's with all) disturb neither, and
+    --leave-alone keeps behave off the vehicles it names."""
     cfg = scenario(tmp_path)
     port = free_port()
     sumo = start_sumo(cfg, port, clients=2)
-    owner = start_user_script(tmp_path, port)
+    owner = start_user_script(tmp_path, port, subscribe=True)
+    table = tmp_path / "agents.csv"
     result = behave("populate", "--connect", f"localhost:{port}", "--share", "0.5", "--duration", "10",
-                    "--agents", str(tmp_path / "agents.csv"), "--json", timeout=300)  # fmt: skip
+                    "--leave-alone", "car.1", "--agents", str(table), "--json", timeout=300)  # fmt: skip
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
     assert summary["left_simulation"] == "duration" and summary["simulated_s"] == pytest.approx(10.0)
     assert "SUMO runs on with the other clients" in result.stderr.strip().splitlines()[-1]
-    assert finish(owner)[0] == 0 and finish(sumo)[0] == 0
+    owner_code, owner_out = finish(owner)
+    assert owner_code == 0, owner_out
+    assert finish(sumo)[0] == 0
+    agents = [row.split(",")[0] for row in table.read_text().splitlines()[1:]]
+    assert agents and not [vid for vid in agents if vid.startswith("car.1")]
     nobody_lost(tmp_path)
 
 
@@ -321,6 +341,7 @@ def test_sumo_time_options_read_in_seconds_and_clock_format():
         ({"share": 0.0}, "give --share F > 0"),
         ({"order": 0}, "--order must be 1 or more"),
         ({"step_length": 0.5}, "drop --step-length"),
+        ({"connect": None, "leave_alone": ("carla",)}, "--leave-alone names another client's vehicles"),
     ],
 )
 def test_what_a_joined_run_cannot_do_is_refused_before_joining(given, message):
