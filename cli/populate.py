@@ -174,9 +174,10 @@ def populate_command(
     connect: Annotated[
         str | None,
         typer.Option(
-            help="HOST:PORT: join a SUMO another program runs (sumo --remote-port PORT --num-clients N) as "
+            metavar="HOST:PORT",
+            help="join a SUMO another program runs (sumo --remote-port PORT --num-clients N) as "
             "one more TraCI client and drive --share of its passenger cars until it ends; no FCD (SUMO's "
-            "own outputs hold the vehicles): docs/manual/connect.md"
+            "own outputs hold the vehicles): docs/manual/connect.md",
         ),
     ] = None,
     order: Annotated[
@@ -192,8 +193,9 @@ def populate_command(
     leave_alone: Annotated[
         list[str] | None,
         typer.Option(
+            metavar="PREFIX",
             help="with --connect: never draw vehicles whose id starts with this (another client's, as "
-            "CARLA's 'carla'); repeatable"
+            "CARLA's 'carla'); repeatable",
         ),
     ] = None,
     quiet: QUIET = False,
