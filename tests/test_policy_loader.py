@@ -39,17 +39,18 @@ def agent_options(policy: Policy) -> list[str]:
 
 def evaluate_options(policy: Policy) -> list[str]:
     """The smallest evaluation of its behaviour: one short episode, the paper's on the tiny road."""
-    if policy.driver == "traffic":
+    if policy.driver in ("traffic", "styled"):
         return agent_options(policy)
     multi = ["--overtakers", "1", "--keepers", "1", "--placement", "C"]
     return ["--scenario", "tiny", *(multi if policy.behaviour == "multi" else ["--agents", "1"])]
 
 
-def test_the_bundled_policies_are_the_four_of_the_model_card():
-    assert BUNDLED == ["lanekeeping", "multi", "overtaking", "traffic"]
+def test_the_bundled_policies_are_the_five_of_the_model_card():
+    assert BUNDLED == ["lanekeeping", "multi", "overtaking", "styled", "traffic"]
     kinds = {name: (p.driver, p.behaviour) for name in BUNDLED for p in [load_policy(name)]}
     assert kinds == {"lanekeeping": ("paper", "lanekeeping"), "multi": ("paper", "multi"),
-                     "overtaking": ("paper", "overtaking"), "traffic": ("traffic", "multi")}  # fmt: skip
+                     "overtaking": ("paper", "overtaking"), "styled": ("styled", "multi"),
+                     "traffic": ("traffic", "multi")}  # fmt: skip
 
 
 @pytest.mark.sumo
@@ -92,8 +93,8 @@ def test_a_sweep_point_runs_every_bundled_policy(name):
 
 def train_options(policy: Policy) -> list[str]:
     """The smallest training of the policy's driver and behaviour, one agent of each kind it drives."""
-    if policy.driver == "traffic":
-        return [policy.behaviour, "--driver", "traffic", "--scenario", "roads", *agent_options(policy)]
+    if policy.driver in ("traffic", "styled"):
+        return [policy.behaviour, "--driver", policy.driver, "--scenario", "roads", *agent_options(policy)]
     agents = {"multi": agent_options(policy), "overtaking": ["--agents", "1", "--opponents", "1"]}
     return [policy.behaviour, "--scenario", "tiny", *agents.get(policy.behaviour, ["--agents", "1"])]
 
