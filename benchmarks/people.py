@@ -94,13 +94,18 @@ class Variant:
     share: float
     policy: str | None = None
     sublanes: bool = False
+    population: str | None = None  # a styled policy's --population
 
 
 def variants(policies: list[str]) -> list[Variant]:
+    """SUMO alone, with and without sublanes, and each policy (`POLICY` or `POLICY@POPULATION`: a styled
+    policy's agents drawn from that population) with every car learned."""
     out = [Variant("sumo", "SUMO", 0.0), Variant("sumo-sublanes", "SUMO sublanes", 0.0, sublanes=True)]
-    for policy in policies:
+    for entry in policies:
+        policy, _, population = entry.partition("@")
         name = Path(policy).stem if policy.endswith(".pt") or "/" in policy else policy
-        out.append(Variant(f"learned-{name}", f"all cars {name}", 1.0, policy))
+        name += f"@{Path(population).stem}" if population else ""
+        out.append(Variant(f"learned-{name}", f"all cars {name}", 1.0, policy, population=population or None))
     return out
 
 
@@ -177,6 +182,8 @@ def run_one(variant: Variant, seed: int, args: argparse.Namespace, net: Path, ro
                "--json", "--quiet"]  # fmt: skip
     if variant.policy is not None:
         command += ["--policy", variant.policy]
+    if variant.population is not None:
+        command += ["--population", variant.population]
     before, started = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True)
     after, wall = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter() - started
