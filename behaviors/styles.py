@@ -69,7 +69,14 @@ OVERTAKER = StyleDistribution(1.07, 0.06, (0.95, 1.25), 1.25, 0.3, 6.0, 2.0)
 """Overtakers: faster, closer, keen to pass (eagerness mean 0.75)."""
 Population = tuple[StyleDistribution, StyleDistribution]
 """The keeper and the overtaker distribution of a population."""
-PRESETS: dict[str, Population] = {"default": (KEEPER, OVERTAKER)}
+HIGHD = (
+    StyleDistribution(0.93, 0.09, (0.75, 1.1), 1.0, 0.5, 2.0, 6.0),
+    StyleDistribution(1.07, 0.09, (0.9, 1.3), 0.8, 0.5, 6.0, 2.0),
+)
+"""Fitted so that every car styled on a highD-like road (`make people`: 2 lanes, 130 km/h, a fifth
+lorries) comes nearest highD's published per-car figures among the populations tried
+(docs/people-calibration.md): shorter and wider headways than the default, wider speeds."""
+PRESETS: dict[str, Population] = {"default": (KEEPER, OVERTAKER), "highd": HIGHD}
 """Named populations: the keeper and the overtaker distribution."""
 
 

@@ -78,6 +78,8 @@ def test_a_population_file_gives_other_distributions_and_bad_ones_are_refused(tm
     keeper, _ = read_population(str(good))
     assert keeper.headway_median == 2.0 and keeper.speed_range == (0.8, 1.2)
     assert read_population("default") == (KEEPER, OVERTAKER)
+    for dist in read_population("highd"):
+        dist.check("highd")  # the fitted preset is within the ranges a file must keep
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"keeper": {**fields, "headway_median": 9.0}, "overtaker": fields}))
     with pytest.raises(BehaveError, match="out of range"):
