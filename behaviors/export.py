@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 from xml.sax.saxutils import quoteattr
 
 from behaviors.errors import BehaveError
+from behaviors.fcd_parquet import precision_options
 from behaviors.files import atomic_path, check_output_path, temp_dir
 from behaviors.sumo_home import sumo_home, sumo_tool
 
@@ -63,11 +64,14 @@ GEO_HEADER = re.compile(r'<fcd-output\.geo value="true"|<!-- behave populate:[^\
 TIMESTEP = re.compile(rb'<timestep time="([^"]*)"')
 
 
-def fcd_options(path: Path, *, geo: bool) -> list[str]:
-    """SUMO options writing FCD to `path`; its suffix picks the format (xml, csv, parquet)."""
+def fcd_options(path: Path, *, geo: bool, precise: bool = False) -> list[str]:
+    """SUMO options writing FCD to `path`; its suffix picks the format (xml, csv, parquet). `precise`:
+    every decimal SUMO's parquet keeps (for the csv behaviors.fcd_parquet streams into parquet), in
+    each of SUMO's outputs: `--precision` is SUMO's for all of them."""
     _fcd_format(path)
     options = ["--fcd-output", str(path), "--fcd-output.attributes", ",".join(FCD_ATTRIBUTES)]
     options += ["--fcd-output.acceleration", "--fcd-output.distance"]
+    options += precision_options() if precise else []
     return [*options, "--fcd-output.geo"] if geo else options
 
 
@@ -125,9 +129,8 @@ def seal_fcd(partial: Path, final: Path, *, header: str, geo: bool, last_time: f
     `header` in place of SUMO's (equal seeds give equal bytes); geo csv/parquet name their
     coordinate columns lon/lat, so the file says what it holds.
     """
-    check = {"xml": _check_xml_whole, "csv": _check_csv_whole, "parquet": _check_parquet_whole}
     try:
-        check[_fcd_format(final)](partial, last_time, step)
+        _check_last_time(_last_time(partial), last_time, step)
     except CutShort as err:
         raise BehaveError(
             f"SUMO's FCD output was cut short, {final} not written (disk full?): {err}"
@@ -135,27 +138,77 @@ def seal_fcd(partial: Path, final: Path, *, header: str, geo: bool, last_time: f
     if final.suffix == ".xml":
         with atomic_path(final) as tmp:
             _copy_with_header(partial, tmp, header)
-    elif geo:
+    elif geo and (final.suffix == ".csv" or not fcd_is_geo(partial)):  # a streamed parquet says lon/lat
         with atomic_path(final) as tmp:
             (_geo_csv if final.suffix == ".csv" else _geo_parquet)(partial, tmp)
     else:
         os.replace(partial, final)
 
 
+def last_whole_step(partial: Path) -> float | None:
+    """The time of the last whole step in an FCD SUMO stopped writing in the middle of a run (None: no
+    step), the file cut back to it where it ends inside one: a csv row without its newline, XML
+    without its end (closed after its last whole <timestep>). A parquet file is whole or unreadable."""
+    path = Path(partial)
+    fmt = _fcd_format(path)
+    if fmt == "csv":
+        with open(path, "rb+") as f:
+            size = f.seek(0, os.SEEK_END)
+            f.seek(max(0, size - 65536))
+            tail = f.read()
+            f.truncate(size - len(tail) + tail.rfind(b"\n") + 1)
+    elif fmt == "xml":
+        try:
+            _xml_last_time(path)
+        except CutShort:  # not well-formed: SUMO stopped inside it
+            _close_xml(path)
+    try:
+        return _last_time(path)
+    except CutShort:
+        return None
+
+
+def _close_xml(path: Path) -> None:
+    """XML FCD cut back to its last </timestep> and closed (a run SUMO left unclosed)."""
+    end = b"</timestep>"
+    with open(path, "rb+") as f:
+        at = f.seek(0, os.SEEK_END)
+        while at > 0:
+            start = max(0, at - (1 << 20))
+            f.seek(start)
+            block = f.read(at - start + len(end))
+            found = block.rfind(end)
+            if found >= 0:
+                f.seek(start + found + len(end))
+                f.truncate()
+                f.write(b"\n</fcd-export>\n")
+                return
+            at = start
+
+
+def _last_time(path: Path) -> float:
+    """The last time step of a whole FCD file (CutShort if it is not whole or holds none)."""
+    last = {"xml": _xml_last_time, "csv": _csv_last_time, "parquet": _parquet_last_time}[_fcd_format(path)]
+    return _read_time(last(path))
+
+
 class CutShort(Exception):
     """An output file that does not reach its end."""
 
 
-def _check_last_time(time: str | float | None, last_time: float, step: float) -> None:
+def _read_time(time: str | float | None) -> float:
     try:
-        seen = float(time)  # type: ignore[arg-type]
+        return float(time)  # type: ignore[arg-type]
     except (TypeError, ValueError):
         raise CutShort(f"last time step {time!r} unreadable") from None
+
+
+def _check_last_time(seen: float, last_time: float, step: float) -> None:
     if abs(seen - last_time) > step / 2:
         raise CutShort(f"last time step {seen:g} s, expected {last_time:g} s")
 
 
-def _check_xml_whole(path: Path, last_time: float, step: float) -> None:
+def _xml_last_time(path: Path) -> str | None:
     """Well-formed to its closing tag (expat in C, 1 MB blocks); the last <timestep> time."""
     import xml.parsers.expat
 
@@ -172,10 +225,10 @@ def _check_xml_whole(path: Path, last_time: float, step: float) -> None:
             parser.Parse(b"", True)
     except xml.parsers.expat.ExpatError as err:
         raise CutShort(f"XML {err}") from None
-    _check_last_time(last.decode() if last else None, last_time, step)
+    return last.decode() if last else None
 
 
-def _check_csv_whole(path: Path, last_time: float, step: float) -> None:
+def _csv_last_time(path: Path) -> str:
     """The last row ends with a newline and has the header's fields; its time is the last step."""
     with open(path, "rb") as f:
         header = f.readline()
@@ -186,10 +239,10 @@ def _check_csv_whole(path: Path, last_time: float, step: float) -> None:
     row = (end.rstrip(b"\n").rsplit(b"\n", 1)[-1] or header).split(b";")
     if len(row) != header.count(b";") + 1:
         raise CutShort("CSV last row has missing fields")
-    _check_last_time(row[0].decode(errors="replace"), last_time, step)
+    return row[0].decode(errors="replace")
 
 
-def _check_parquet_whole(path: Path, last_time: float, step: float) -> None:
+def _parquet_last_time(path: Path) -> float | None:
     """Parquet's footer is written last: a cut file does not open; then the last time step."""
     import pyarrow.parquet as pq
 
@@ -199,7 +252,7 @@ def _check_parquet_whole(path: Path, last_time: float, step: float) -> None:
         times = table.read_row_group(groups - 1, columns=["timestep_time"]).column(0) if groups else []
     except Exception as err:  # pyarrow raises several types on a cut file
         raise CutShort(str(err)) from None
-    _check_last_time(times[-1].as_py() if len(times) else None, last_time, step)
+    return times[-1].as_py() if len(times) else None
 
 
 def _copy_with_header(source: Path, target: Path, header: str) -> None:

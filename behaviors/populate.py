@@ -63,7 +63,15 @@ from behaviors.drivers import DRIVERS, make_driver
 from behaviors.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.env_core import EnvConfig
 from behaviors.errors import BehaveError
-from behaviors.export import FCD_SUFFIXES, fcd_options, require_projection, seal_fcd
+from behaviors.export import (
+    FCD_SUFFIXES,
+    fcd_options,
+    last_whole_step,
+    require_projection,
+    seal_fcd,
+)
+from behaviors.fcd_parquet import PRECISION as PARQUET_PRECISION
+from behaviors.fcd_parquet import ParquetStream
 from behaviors.files import atomic_path, check_output_path, temp_path
 from behaviors.geometry import CAR_CLASS, RoadGeometry, load_geometry
 from behaviors.interrupt import sigint_between_steps
@@ -81,7 +89,7 @@ from behaviors.scenario_config import (
     run_as_sumocfg,
     share_draw,
 )
-from behaviors.sim import SimOptions, SumoSim, VehicleState, check_display
+from behaviors.sim import SimOptions, SumoSim, SumoStopped, VehicleState, check_display, sumo_stopped
 from behaviors.styles import Styles, read_population
 from behaviors.timing import PhaseTimer
 from behaviors.traffic_env import VTYPES
@@ -229,6 +237,12 @@ def config_from(
         values.update(lateral_resolution=plan.lateral_resolution)
         if notes is not None:
             notes.extend(plan.notes)
+        if notes is not None and Path(values.get("fcd", "")).suffix == ".parquet":
+            notes.append(
+                f"the parquet FCD is written from SUMO's csv at {PARQUET_PRECISION} decimals, and SUMO's "
+                f"--precision is for all its outputs: {sumocfg.name}'s own outputs get {PARQUET_PRECISION} "
+                "decimals too (--fcd .xml or .csv keeps theirs)"
+            )
         own = lateral_for(scenario, False), scenario.step_length or SUMO_STEP_LENGTH
         ran = plan.lateral_resolution, plan.step_length
         if notes is not None and agent_settings and not agents and own != ran:
@@ -633,6 +647,7 @@ class Population:
         self.background_ids: set[str] = set()
         self.vehicles: VehicleState | None = None  # read after each step, used to sense in the next
         self.sim: SumoSim | None = None
+        self.now = 0.0  # SUMO's time after the last whole step: what the outputs hold if SUMO fails
 
     def _check_capacity(self) -> None:
         c = self.config
@@ -644,14 +659,15 @@ class Population:
                 f"{int(lane_metres / CAR_FOOTPRINT)}"
             )
 
-    def start(self, fcd_tmp: Path | None) -> None:
-        """Start SUMO writing FCD to `fcd_tmp` (None: no FCD, for benchmarks) and ask for the cars."""
+    def start(self, fcd_tmp: Path | None, precise: bool = False) -> None:
+        """Start SUMO writing FCD to `fcd_tmp` (None: no FCD, for benchmarks) and ask for the cars;
+        `precise`: at every decimal (export.fcd_options), for the csv a ParquetStream reads."""
         if self.joined is not None:
             self._join(self.joined)
             return
         c, scenario = self.config, self.scenario
         routes = (c.routes,) if c.routes else ()
-        fcd = () if fcd_tmp is None else tuple(fcd_options(fcd_tmp, geo=c.geo))
+        fcd = () if fcd_tmp is None else tuple(fcd_options(fcd_tmp, geo=c.geo, precise=precise))
         options = SimOptions(net=c.net, additional=(VTYPES,), routes=routes, step_length=c.step_length,
                              seed=c.seed, extra=fcd, gui=c.gui,
                              agent_max_speed_lat=self.fleet.driver.max_lateral_speed)  # fmt: skip
@@ -663,6 +679,7 @@ class Population:
             else:  # a sumocfg keeps its own begin time; a net starts at 0
                 options = replace(options, extra=("--begin", "0", *fcd))
             self.sim = SumoSim(options)
+        self.now = self.sim.time
         self.routes = RoutePool(self.graph, c.duration * 50.0, self.sim.add_route)
         self.insert("overtaker", c.overtakers)
         self.insert("keeper", c.keepers)
@@ -777,6 +794,7 @@ class Population:
                 self.insert(kind, sum(v.startswith(kind) for v in left))
             self.insert("background", len(left_background))
         self.summary.simulated_s += c.step_length
+        self.now = now
 
     def _convert(self, departed: list[str], time: float) -> None:
         """The share of the scenario's passenger cars that departed this step become agents: behave's
@@ -974,19 +992,39 @@ def partial_path(final: Path) -> Path:
 
 
 def finish_fcd(
-    partial: Path, final: Path, config: PopulateConfig, last_time: float, cut_short: bool = False
-) -> None:
+    partial: Path,
+    final: Path,
+    config: PopulateConfig,
+    last_time: float,
+    cut_short: bool = False,
+    stream: ParquetStream | None = None,
+    stopped: bool = False,
+) -> float:
     """Check SUMO's FCD is whole and move it into place; XML gets a deterministic header (equal
-    seeds give equal bytes) that says whether it holds lon/lat, and where Ctrl-C cut the run short."""
+    seeds give equal bytes) that says whether it holds lon/lat, and where Ctrl-C cut the run short; a
+    parquet `stream` the same settings as its file metadata (fcd_parquet.METADATA_KEY). `stopped`: SUMO
+    failed, and the FCD ends at its own last whole step, whichever (SUMO may have written the step it
+    failed in); returns the last step's time."""
+    if stopped:
+        if stream is not None:
+            stream.wait()
+        found = stream.last_time if stream is not None else last_whole_step(partial)
+        if found is None:
+            raise BehaveError(f"it stopped before a whole step: {final} not written")
+        last_time = found
     cut = f" cut-short-after={last_time + config.step_length:g}" if cut_short else ""
-    header = (
-        f"<!-- behave populate: net={config.net.name} overtakers={config.overtakers} "
+    settings = (
+        f"behave populate: net={config.net.name} overtakers={config.overtakers} "
         f"keepers={config.keepers} background={config.background} duration={config.duration} "
         f"step-length={config.step_length} seed={config.seed}{' geo=true' if config.geo else ''}"
         f"{f' driver={config.driver}' if config.driver else ''}"
-        f"{f' sumocfg={config.sumocfg.name} share={config.share}' if config.sumocfg else ''}{cut} -->\n"
+        f"{f' sumocfg={config.sumocfg.name} share={config.share}' if config.sumocfg else ''}{cut}"
     )
+    if stream is not None:
+        stream.finish(settings)
+    header = f"<!-- {settings} -->\n"
     seal_fcd(partial, final, header=header, geo=config.geo, last_time=last_time, step=config.step_length)
+    return last_time
 
 
 def populate(
@@ -1008,38 +1046,70 @@ def populate(
     torch.set_num_threads(POLICY_THREADS)
     population = Population(config, on_status, policy)
     partial = partial_path(config.fcd)
+    stream: ParquetStream | None = None
+    stopped: SumoStopped | None = None
     start = time.perf_counter()
     try:
         if on_status:
             on_status("starting SUMO")
-        population.start(partial)
+        if config.fcd.suffix == ".parquet":  # SUMO's own parquet writer keeps the whole trace in memory
+            stream = ParquetStream(partial, geo=config.geo, final=config.fcd)
+        population.start(partial if stream is None else stream.source, precise=stream is not None)
         steps = round(config.duration / config.step_length)
         with sigint_between_steps() as interrupted:
             for _ in range(steps):
-                population.step()
+                try:
+                    population.step()
+                except Exception as exc:  # SUMO failing mid-run: keep what it simulated
+                    stopped = sumo_stopped(exc, population.sim.options) if population.sim else None
+                    if stopped is None:
+                        raise
+                    population.summary.cut_short = True
+                    break
                 if on_step:
                     on_step(population.summary.simulated_s)
                 if interrupted():
                     population.summary.cut_short = True
                     break
-        driving = population.driving_rows()
-        last_time = population.sim.time - config.step_length if population.sim else 0.0
-        population.close()
-        finish_fcd(partial, config.fcd, config, last_time, population.summary.cut_short)
+        driving = population.log.driving(population.now)
+        population.close()  # SUMO closes its outputs
+        last_time = finish_fcd(partial, config.fcd, config, population.now - config.step_length,
+                               population.summary.cut_short, stream, stopped is not None)  # fmt: skip
         write_agents_csv(agents_path(config.fcd), population.log.ended, driving)
         population.summary.count_agents(population.log.ended, driving)
         if population.summary.sumo is not None:
             population.summary.sumo.finish()
+    except BehaveError as err:
+        if stopped is None or err is stopped:
+            raise
+        raise BehaveError(f"{stopped}; {err}") from None  # nothing kept: the first error, then why
     finally:
         population.close()
+        if stream is not None:
+            stream.close()
         population.log.ended.close()
         with contextlib.suppress(FileNotFoundError):
             partial.unlink()
     population.summary.wall_s = time.perf_counter() - start
     population.summary.phases = dict(population.timer.seconds)
+    if stopped is not None:
+        raise PopulateStopped(
+            f"{stopped}; {config.fcd} and its agents table hold the run up to t={last_time:g} s (cut short)",
+            population.summary,
+        )
     if population.summary.cut_short:
         raise PopulateInterrupted(population.summary)
     return population.summary
+
+
+class PopulateStopped(BehaveError):
+    """SUMO failed during `populate` (sim.SumoStopped); the FCD and agents table up to its last whole
+    step were written, marked cut short as a Ctrl-C's are, and `.summary` is the run's. The message is
+    SUMO's error and what was kept, one line."""
+
+    def __init__(self, message: str, summary: PopulateSummary) -> None:
+        super().__init__(message)
+        self.summary = summary
 
 
 class PopulateInterrupted(KeyboardInterrupt):

@@ -251,7 +251,7 @@ class SumoSim:
         try:
             self._sumo.simulationStep()
         except Exception as exc:  # SUMO loads routes as time goes on: a bad one can stop it here
-            raise sumo_error(exc, self.options, "stopped") from None
+            raise SumoStopped(str(sumo_error(exc, self.options, "stopped"))) from None
 
     def read_vehicles(self, with_distance: bool = True) -> VehicleState:
         """Position, speed (and odometer) of every vehicle: the one per-step read of the whole fleet."""
@@ -543,6 +543,22 @@ def fast_vehicle_calls(libsumo: ModuleType) -> SimpleNamespace:
     compiled = getattr(libsumo, "_libsumo", None)
     calls = {name: getattr(compiled, f"vehicle_{name}", None) for name in FAST_CALLS}
     return SimpleNamespace(**{name: call or getattr(libsumo.vehicle, name) for name, call in calls.items()})
+
+
+class SumoStopped(BehaveError):
+    """SUMO failed while a simulation ran: a route or vehicle it loads as time goes on, a simulation
+    closed under the run, sumo-gui's window closed. The outputs it wrote so far are whole up to the
+    last step (SUMO closes them as it closes)."""
+
+
+def sumo_stopped(exc: BaseException, options: SimOptions) -> SumoStopped | None:
+    """`exc` as a SumoStopped if SUMO raised it (SumoSim.step, or any of libsumo's or TraCI's own
+    errors from a call into a simulation that is gone), else None: behave's own errors stay theirs."""
+    if isinstance(exc, SumoStopped):
+        return exc
+    if type(exc).__module__.split(".")[0] in ("libsumo", "traci"):
+        return SumoStopped(str(sumo_error(exc, options, "stopped")))
+    return None
 
 
 def sumo_error(exc: BaseException, options: SimOptions, what: str) -> BehaveError:

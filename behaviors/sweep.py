@@ -22,6 +22,8 @@ kept apart in WALL_COLUMNS.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 import itertools
 import json
@@ -40,7 +42,7 @@ from typing import TYPE_CHECKING, Any
 
 from behaviors.agents_table import STANDSTILL_SPEED, agents_path
 from behaviors.errors import BehaveError
-from behaviors.files import atomic_path, atomic_write_text, ensure_writable_dir
+from behaviors.files import atomic_path, atomic_write_text, disk_full, ensure_writable_dir
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -531,6 +533,41 @@ def short(setting: str, value: Any) -> str:
     return Path(str(value)).name.split(".")[0] if setting in ("scenario", "policy") else f"{setting}={value}"
 
 
+NO_SPACE = os.strerror(errno.ENOSPC)
+"""How a write on a full disk is reported ("No space left on device"); populate's FCD check says
+"disk full?" where SUMO could not tell."""
+
+
+def disk_full_error(text: str, out: Path | None = None) -> bool:
+    """Whether an error is a full disk's: its text says so, or the disk of `out` has no room left."""
+    return NO_SPACE in text or "disk full" in text or (out is not None and disk_full(Path(out)))
+
+
+def keep_result(out: Path, result: RunResult) -> str | None:
+    """A run's files and row into the sweep folder; the error if the disk is full, with nothing of the
+    run left behind (a run without its row is run again), or if the run itself failed for a full disk
+    (its failed row kept where it fits)."""
+    try:
+        save_files(out, result)
+        write_row(out, result.row)
+    except BehaveError as err:
+        if not disk_full_error(str(err), out):
+            raise
+        discard_files(out, result.row["id"])
+        return str(err)
+    if result.row["status"] != OK and disk_full_error(str(result.row.get("error", ""))):
+        return str(result.row["error"])
+    return None
+
+
+def discard_files(out: Path, point_id: str) -> None:
+    """A run's row and files, removed (where saving them failed part of the way)."""
+    shutil.rmtree(Path(out) / OUTPUTS_DIR / point_id, ignore_errors=True)
+    for path in (row_path(out, point_id), *(Path(out) / FCD_DIR).glob(f"{point_id}.*")):
+        with contextlib.suppress(OSError):
+            path.unlink()
+
+
 def save_files(out: Path, result: RunResult) -> None:
     """A run's scenario outputs into `outputs/<id>/` (the folder cleared first: a run again replaces
     them) and a kept run's FCD and agents table into `fcd/`."""
@@ -576,13 +613,16 @@ def run_sweep(
 ) -> SweepResult:
     """Run the points not finished yet, at most `workers` at a time (None: as many as Ray has CPUs),
     each as a Ray task (its own process, its own SUMO); write each row as it comes back, then the
-    table and the plot."""
+    table and the plot. A worker that dies loses its run only (a failed row, run again next time). A
+    full disk stops the sweep: the runs under way are cancelled, the finished ones' rows stay, and a
+    BehaveError says so (the same call again, once there is room, runs the rest)."""
     out = Path(out)
     ensure_writable_dir(out / RUNS_DIR)
     done = finished(out, points)
     todo = [point for point in points if point.id not in done]
     say = on_event or (lambda text: None)
     failures = 0
+    full: str | None = None  # why the sweep stopped: the disk is full
     if not todo:
         say(f"{len(points)} runs: all {len(done)} finished before")
     else:
@@ -596,7 +636,7 @@ def run_sweep(
             say(f"{len(points)} runs: {len(done)} finished before, {len(todo)} to run on {workers} workers")
             task = ray.remote(num_cpus=1, max_retries=0)(run_point)
             waiting, running = list(todo), dict[Any, Point]()
-            while waiting or running:
+            while (waiting or running) and full is None:
                 while waiting and len(running) < workers:
                     point = waiting.pop(0)
                     running[task.remote(point, keep_fcd=keep_fcd)] = point
@@ -604,15 +644,24 @@ def run_sweep(
                 point = running.pop(ready[0])
                 try:
                     result = ray.get(ready[0])
-                except Exception as exc:  # the worker died (a crash in SUMO): the run failed
+                except Exception as exc:  # the worker died (a crash in SUMO, killed): the run failed
                     result = RunResult(failed_row(point, error_line(getattr(exc, "cause", None) or exc)))
-                save_files(out, result)
-                write_row(out, result.row)
+                full = keep_result(out, result)
                 ok = result.row["status"] == OK
                 failures += not ok
-                say(f"{point.id}: {OK if ok else 'failed: ' + result.row['error']}")
+                lost = "" if row_path(out, point.id).is_file() else " (not kept: the disk is full)"
+                say(f"{point.id}: {OK if ok else 'failed: ' + result.row['error']}{lost}")
+            for ref in running:  # stopped for a full disk: the runs under way would not fit either
+                with contextlib.suppress(Exception):
+                    ray.cancel(ref, force=True)
         finally:
             ray.shutdown()
+    if full is not None:
+        kept = len(finished(out, points))
+        raise BehaveError(
+            f"disk full, the sweep stopped ({full}): {kept} of {len(points)} runs finished, their rows kept "
+            f"in {out / RUNS_DIR}; make room and run the same sweep again for the other {len(points) - kept}"
+        )
     table = gather(out)
     outputs = write_table(out, table)
     picture = plot_table(table, out / f"{TABLE}.png")
