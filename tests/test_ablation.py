@@ -121,7 +121,8 @@ def test_make_ablation_runs_end_to_end_at_a_tiny_duration(tmp_path):
     assert done.returncode == 0, done.stderr
     text = doc.read_text()
     assert text.startswith("# Who drives")
-    assert "Written by `make ablation` (`python benchmarks/ablation.py --seeds 0,1 --duration 14 --policy" in text
+    command = "`python benchmarks/ablation.py --seeds 0,1 --duration 14 --policy"
+    assert f"Written by `make ablation` ({command}" in text
     assert "CPU: " in text and "Issue 43's bar" in text
     for traffic in ("light", "dense"):
         recorded = np.load(tmp_path / "runs" / traffic / "policy" / "s0" / "actions.npz")
