@@ -100,6 +100,8 @@ flow: $(STAMP)
 # --driver rules, light and dense highway, seeds 0-2 (about 20 min of one core); writes docs/ablation.md
 ablation: $(STAMP)
 	$(BIN)/python benchmarks/ablation.py --seeds 0,1,2 --duration 1800
+	$(BIN)/python benchmarks/ablation.py --seeds 0,1,2 --duration 900 --policy behaviors/pretrained/styled.pt \
+		--doc docs/ablation-styled.md --out runs/ablation-styled
 
 # like people (issue 43): a highD-like 2-lane Autobahn at 130 km/h with a fifth lorries, SUMO alone and every
 # car learned (traffic.pt; styled.pt too once it exists), closest headways, lane changes, mean speeds and lane
