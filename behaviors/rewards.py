@@ -223,6 +223,34 @@ class TrafficTerms:
         return TrafficTerms({name: value * weights.get(name, 1.0) for name, value in self.values.items()})
 
 
+def _driving_terms(step: TrafficStep, w: TrafficWeights) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The terms every traffic-type reward shares (closing in, lane centre, passing on the slow side,
+    comfort, losses), and whether the slow-side lane is free (what keeping right is judged by)."""
+    v = step.speed
+    lead_gap, lead_speed = step.gap[:, 0], step.other_speed[:, 0]
+    has_lead = np.isfinite(lead_gap) & ~np.isnan(lead_speed)
+    closing_speed = np.where(has_lead, v - np.nan_to_num(lead_speed), 0.0)
+    ttc = np.where(closing_speed > 0.1, lead_gap / np.maximum(closing_speed, 0.1), np.inf)
+    slow_gap, slow_follow_gap = step.gap[:, 4], step.gap[:, 5]
+    slow_lane_free = (slow_gap > np.maximum(w.free_slow_lane, 3.0 * v)) & (
+        slow_follow_gap > np.maximum(10.0, v)
+    )
+    fast_gap, fast_speed = step.gap[:, 2], step.other_speed[:, 2]
+    passing = (fast_gap < w.passing_zone) & ~np.isnan(fast_speed)
+    undertaking = np.where(passing, np.clip((v - np.nan_to_num(fast_speed)) / 5.0, 0.0, 1.0), 0.0)
+    terms = {
+        "closing": -w.closing * np.clip((w.safe_ttc - ttc) / w.safe_ttc, 0.0, 1.0),
+        "centre": -w.centre * np.minimum(step.lane_deviation, 1.0),
+        "pass_slow_side": -w.pass_slow_side * undertaking,
+        "comfort": -w.comfort * (step.lateral_acceleration / 1.5) ** 2
+        - w.comfort_longitudinal * (step.acceleration / 3.0) ** 2,
+        "collision": -w.crash * step.collided,
+        "off_track": -w.crash * step.off_track,
+        "no_progress": -w.no_progress * step.no_progress,
+    }
+    return terms, slow_lane_free
+
+
 def traffic_rewards(step: TrafficStep, w: TrafficWeights) -> TrafficTerms:
     v = step.speed
     overtaker = step.behaviour_id > 0.5
@@ -235,29 +263,14 @@ def traffic_rewards(step: TrafficStep, w: TrafficWeights) -> TrafficTerms:
     )
     speed = 1.0 - np.abs(v - target) / np.maximum(target, 1.0)
     safe_gap = w.standstill_gap + w.safe_headway * v  # a queue's few metres at a standstill
-    closing_speed = np.where(has_lead, v - np.nan_to_num(lead_speed), 0.0)
-    ttc = np.where(closing_speed > 0.1, lead_gap / np.maximum(closing_speed, 0.1), np.inf)
-    slow_gap, slow_follow_gap = step.gap[:, 4], step.gap[:, 5]
-    slow_lane_free = (slow_gap > np.maximum(w.free_slow_lane, 3.0 * v)) & (
-        slow_follow_gap > np.maximum(10.0, v)
-    )
-    fast_gap, fast_speed = step.gap[:, 2], step.other_speed[:, 2]
-    passing = (fast_gap < w.passing_zone) & ~np.isnan(fast_speed)
-    undertaking = np.where(passing, np.clip((v - np.nan_to_num(fast_speed)) / 5.0, 0.0, 1.0), 0.0)
+    shared, slow_lane_free = _driving_terms(step, w)
     change_cost = np.where(overtaker, w.lane_change_overtaker, w.lane_change_keeper)
     values = {
+        **shared,
         "speed": np.clip(speed, -1.0, 1.0),
         "headway": -w.headway * np.where(has_lead, np.clip(1.0 - lead_gap / safe_gap, 0.0, 1.0), 0.0),
-        "closing": -w.closing * np.clip((w.safe_ttc - ttc) / w.safe_ttc, 0.0, 1.0),
-        "centre": -w.centre * np.minimum(step.lane_deviation, 1.0),
         "lane_change": -change_cost * step.lane_changed,
         "keep_slow_side": -w.keep_slow_side * (overtaker & slow_lane_free),
-        "pass_slow_side": -w.pass_slow_side * undertaking,
-        "comfort": -w.comfort * (step.lateral_acceleration / 1.5) ** 2
-        - w.comfort_longitudinal * (step.acceleration / 3.0) ** 2,
-        "collision": -w.crash * step.collided,
-        "off_track": -w.crash * step.off_track,
-        "no_progress": -w.no_progress * step.no_progress,
     }
     return TrafficTerms({k: np.asarray(x, float) for k, x in values.items()})
 
@@ -272,7 +285,7 @@ def styled_rewards(step: TrafficStep, w: TrafficWeights) -> TrafficTerms:
     (1 - eagerness: an eager driver is not content behind it, which is its reason to pass); the
     headway against the style's (a fraction off costs that fraction), closer than SAFETY_HEADWAY
     costing more; a lane change costing less the eagerer the driver; and keeping right asked of
-    everyone, as the law asks it."""
+    everyone, as the law asks it. The other terms are the traffic reward's (`_driving_terms`)."""
     assert step.time_headway is not None and step.eagerness is not None
     v, wanted, eager = step.speed, step.time_headway, step.eagerness
     lead_gap, lead_speed = step.gap[:, 0], step.other_speed[:, 0]
@@ -284,28 +297,14 @@ def styled_rewards(step: TrafficStep, w: TrafficWeights) -> TrafficTerms:
     headway = np.where(following, lead_gap / np.maximum(v, 0.1), np.inf)
     off_style = np.where(following, np.minimum(np.abs(headway - wanted) / wanted, 1.0), 0.0)
     too_close = np.clip(1.0 - headway / SAFETY_HEADWAY, 0.0, 1.0)
-    closing_speed = np.where(has_lead, v - np.nan_to_num(lead_speed), 0.0)
-    ttc = np.where(closing_speed > 0.1, lead_gap / np.maximum(closing_speed, 0.1), np.inf)
-    slow_lane_free = (step.gap[:, 4] > np.maximum(w.free_slow_lane, 3.0 * v)) & (
-        step.gap[:, 5] > np.maximum(10.0, v)
-    )
-    fast_gap, fast_speed = step.gap[:, 2], step.other_speed[:, 2]
-    passing = (fast_gap < w.passing_zone) & ~np.isnan(fast_speed)
-    undertaking = np.where(passing, np.clip((v - np.nan_to_num(fast_speed)) / 5.0, 0.0, 1.0), 0.0)
+    shared, slow_lane_free = _driving_terms(step, w)
     change_cost = w.lane_change_overtaker + (w.lane_change_keeper - w.lane_change_overtaker) * (1.0 - eager)
     values = {
+        **shared,
         "speed": np.clip(speed, -1.0, 1.0),
         "headway": -0.5 * w.headway * off_style - w.headway * too_close,
-        "closing": -w.closing * np.clip((w.safe_ttc - ttc) / w.safe_ttc, 0.0, 1.0),
-        "centre": -w.centre * np.minimum(step.lane_deviation, 1.0),
         "lane_change": -change_cost * step.lane_changed,
         "keep_slow_side": -w.keep_slow_side * slow_lane_free,
-        "pass_slow_side": -w.pass_slow_side * undertaking,
-        "comfort": -w.comfort * (step.lateral_acceleration / 1.5) ** 2
-        - w.comfort_longitudinal * (step.acceleration / 3.0) ** 2,
-        "collision": -w.crash * step.collided,
-        "off_track": -w.crash * step.off_track,
-        "no_progress": -w.no_progress * step.no_progress,
     }
     return TrafficTerms({k: np.asarray(x, float) for k, x in values.items()})
 
