@@ -1,7 +1,7 @@
 """behave: learned, behaviour-based traffic in SUMO (PS-DDPG after Kaushik et al.).
 
 The env names are loaded on first use: every `behave` command imports this package, and
-behaviors.env (numpy, gymnasium, libsumo) would add ~0.4 s to each, `behave --help` included.
+behaviors.learn.env (numpy, gymnasium, libsumo) would add ~0.4 s to each, `behave --help` included.
 """
 
 from __future__ import annotations
@@ -11,7 +11,11 @@ from typing import Any
 
 from behaviors.errors import BehaveError
 
-_LAZY = {"BehaveEnv": "behaviors.env", "EnvConfig": "behaviors.env", "make_env": "behaviors.env"}
+_LAZY = {
+    "BehaveEnv": "behaviors.learn.env",
+    "EnvConfig": "behaviors.learn.env",
+    "make_env": "behaviors.learn.env",
+}
 
 __all__ = ["BehaveEnv", "BehaveError", "EnvConfig", "make_env"]
 

@@ -36,12 +36,12 @@ from common import write_measured_doc
 from dense_bars import SETTINGS, Setting, cell
 from highway_anchor import cpu_model
 
-from behaviors.agents_table import agents_path
-from behaviors.export import read_fcd
-from behaviors.lanes import TRAFFIC_SLICES
-from behaviors.policy import RULES, RULES_ACTION, Act, Policy, held_constant
-from behaviors.populate import DEFAULT_POLICY, PopulateConfig, populate, populate_policy
-from behaviors.realism import KEEPERS, OVERTAKERS, measure, read_agents, read_lanes
+from behaviors.learn.policy import RULES, RULES_ACTION, Act, Policy, held_constant
+from behaviors.report.agents_table import agents_path
+from behaviors.report.export import read_fcd
+from behaviors.report.realism import KEEPERS, OVERTAKERS, measure, read_agents, read_lanes
+from behaviors.run.populate import DEFAULT_POLICY, PopulateConfig, populate, populate_policy
+from behaviors.traffic.lanes import TRAFFIC_SLICES
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ Samples = dict[str, dict[tuple[str, str], list[float]]]
 """variant -> (group, figure key) -> its value in each seed's run."""
 
 
-# ---- the bar's arithmetic (pure: tests/test_ablation.py) ----
+# ---- the bar's arithmetic (pure: tests/run/test_ablation.py) ----
 
 
 def mean(values: Sequence[float]) -> float:

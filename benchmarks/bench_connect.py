@@ -88,12 +88,12 @@ def child(mode: str, cfg: Path, cars: int, steps: int) -> dict[str, float]:
     """One timed run in this (fresh) process."""
     import torch
 
-    from behaviors.joined import Address, JoinedSim
-    from behaviors.populate import POLICY_THREADS, Population, config_from, joinable
-    from behaviors.scenario_config import read_sumocfg, unrandom
-    from behaviors.sim import COLLISION_OPTIONS
-    from behaviors.sumo_home import sumo_binary
-    from behaviors.traffic_env import VTYPES
+    from behaviors.learn.traffic_env import VTYPES
+    from behaviors.run.populate import POLICY_THREADS, Population, config_from, joinable
+    from behaviors.sumo.joined import Address, JoinedSim
+    from behaviors.sumo.scenario_config import read_sumocfg, unrandom
+    from behaviors.sumo.sim import COLLISION_OPTIONS
+    from behaviors.sumo.sumo_home import sumo_binary
 
     torch.set_num_threads(POLICY_THREADS)
     sumo = None

@@ -38,8 +38,8 @@ from highway_anchor import (
 from rich.console import Console
 
 from behaviors import make_env
-from behaviors.env import BehaveEnv, EnvConfig
-from behaviors.geometry import RAY_RANGE
+from behaviors.learn.env import BehaveEnv, EnvConfig
+from behaviors.road.geometry import RAY_RANGE
 from sumo_scenarios import Scenario, build_ring
 
 WARMUP_STEPS = 20

@@ -13,7 +13,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from behaviors.ddpg import DDPGConfig, DDPGLearner
+from behaviors.learn.ddpg import DDPGConfig, DDPGLearner
 
 OBS_DIM = 65
 

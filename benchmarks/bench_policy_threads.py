@@ -23,7 +23,7 @@ import torch
 from common import print_table
 from rich.console import Console
 
-from behaviors.populate import POLICY_THREADS, PopulateConfig, populate_policy
+from behaviors.run.populate import POLICY_THREADS, PopulateConfig, populate_policy
 
 
 def spin(seconds: float) -> None:

@@ -57,10 +57,10 @@ import torch
 from common import CpuBurner, print_table, progress, write_csv
 from rich.console import Console
 
-from behaviors.ddpg.checkpoint import load_checkpoint
-from behaviors.lanes import TRAFFIC_OBS_SIZE
-from behaviors.populate import DEFAULT_POLICY, POLICY_THREADS, PopulateConfig, Population, partial_path
-from behaviors.sensors import OBS_SIZE_WITH_ID
+from behaviors.learn.ddpg.checkpoint import load_checkpoint
+from behaviors.paper.sensors import OBS_SIZE_WITH_ID
+from behaviors.run.populate import DEFAULT_POLICY, POLICY_THREADS, PopulateConfig, Population, partial_path
+from behaviors.traffic.lanes import TRAFFIC_OBS_SIZE
 from sumo_scenarios.build import build_straight
 
 WARMUP_STEPS = 20

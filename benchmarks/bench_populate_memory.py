@@ -25,7 +25,7 @@ import torch
 from common import print_table
 from rich.console import Console
 
-from behaviors.populate import POLICY_THREADS, PopulateConfig, Population, partial_path
+from behaviors.run.populate import POLICY_THREADS, PopulateConfig, Population, partial_path
 from sumo_scenarios import get_scenario
 
 

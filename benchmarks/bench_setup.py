@@ -15,8 +15,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from behaviors.geometry import cache_path, load_geometry
-from behaviors.sim import SimOptions, SumoSim
+from behaviors.road.geometry import cache_path, load_geometry
+from behaviors.sumo.sim import SimOptions, SumoSim
 
 
 def seconds(run) -> float:

@@ -23,10 +23,10 @@ import numpy as np
 import pandas as pd
 from common import write_measured_doc
 
-from behaviors.agents_table import agents_path
-from behaviors.export import read_fcd
-from behaviors.populate import DEFAULT_POLICY, PopulateConfig, populate
-from behaviors.realism import Lanes, group_names, measure, read_agents, read_lanes
+from behaviors.report.agents_table import agents_path
+from behaviors.report.export import read_fcd
+from behaviors.report.realism import Lanes, group_names, measure, read_agents, read_lanes
+from behaviors.run.populate import DEFAULT_POLICY, PopulateConfig, populate
 from sumo_scenarios import get_scenario
 from sumo_scenarios.net import read_net
 

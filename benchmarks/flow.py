@@ -5,7 +5,7 @@ the same size, held by `--keep-count`: SUMO's own cars alone, 50% learned and 10
 (keepers and overtakers 1:1, the bundled `traffic` policy, shield on as users run it). Each run
 is `behave populate` through the library for WARMUP_S + MEASURE_S simulated seconds; flow,
 density and speed are Edie's over the whole road (every multi-lane edge) and the measured window
-(behaviors/flow.py). Roads:
+(behaviors/report/flow.py). Roads:
 
 * `highway`: the bundled straight 3-lane highway, 3 km, 3.5 m lanes;
 * `curved4`: a curved 4-lane motorway no policy trained on, 3 km, 3.75 m lanes, no bottleneck
@@ -40,10 +40,10 @@ import numpy as np
 import pandas as pd
 from common import write_measured_doc
 
-from behaviors.export import read_fcd
-from behaviors.flow import ALL, RoadEdges, edie_cells, region, road_from_net
-from behaviors.populate import DEFAULT_POLICY, PopulateConfig, populate
-from behaviors.realism import THW_LIMIT, group_names, headways, prepare, read_lanes
+from behaviors.report.export import read_fcd
+from behaviors.report.flow import ALL, RoadEdges, edie_cells, region, road_from_net
+from behaviors.report.realism import THW_LIMIT, group_names, headways, prepare, read_lanes
+from behaviors.run.populate import DEFAULT_POLICY, PopulateConfig, populate
 from sumo_scenarios import get_scenario
 from sumo_scenarios.build import write_xml
 from sumo_scenarios.osm_like import Chain, run_netconvert, write_plain
@@ -402,7 +402,7 @@ def document(
         f"Each run: {runs[0].warmup:g} s warm-up, then {runs[0].measure:g} s measured. Density, flow "
         f"and speed are Edie's definitions over every multi-lane edge and the measured window "
         f"({CELL_M:g} m x "
-        f"{WINDOW_S:g} s cells, `behaviors/flow.py`); the vehicle count is the target density x the "
+        f"{WINDOW_S:g} s cells, `behaviors/report/flow.py`); the vehicle count is the target density x the "
         "road's lane-km (multi-lane edges), so the measured density differs where cars bunch up "
         "or fail to get in. Fleets: SUMO's cars alone (vType `behave_background`, Krauss + SL2015), "
         "50% learned and 100% learned (keepers:overtakers 1:1). `agents stood >= 30 s`: agents "

@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 from common import meets_lanekeeping_bar, numbered_checkpoints
 
-from behaviors.evaluate import evaluate
-from behaviors.metrics import mean_rows
-from behaviors.policy import load_policy
-from behaviors.train import TrainConfig, prepare_run
+from behaviors.learn.metrics import mean_rows
+from behaviors.learn.policy import load_policy
+from behaviors.learn.train import TrainConfig, prepare_run
+from behaviors.run.evaluate import evaluate
 
 
 def main() -> None:

@@ -28,12 +28,12 @@ import sys
 import time
 from pathlib import Path
 
-from behaviors.ddpg.checkpoint import load_actor, save_actor_only
-from behaviors.env import EnvConfig
-from behaviors.evaluate import evaluate
 from behaviors.files import atomic_write_text
-from behaviors.metrics import mean_rows
-from behaviors.policy import load_policy
+from behaviors.learn.ddpg.checkpoint import load_actor, save_actor_only
+from behaviors.learn.env import EnvConfig
+from behaviors.learn.metrics import mean_rows
+from behaviors.learn.policy import load_policy
+from behaviors.run.evaluate import evaluate
 
 REPOSITORY = Path(__file__).resolve().parents[1]
 PRETRAINED = REPOSITORY / "behaviors" / "pretrained"

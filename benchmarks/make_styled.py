@@ -1,5 +1,5 @@
 """The recipe of the shipped styled.pt: demonstrations of the styled driver's teacher on the training
-roads, then an actor fitted to them (behaviors/imitation.py).
+roads, then an actor fitted to them (behaviors/learn/imitation.py).
 
     python benchmarks/make_styled.py --episodes 160 --seed 1          # collect, fit, write styled.pt
     python benchmarks/make_styled.py --episodes 10 --seed 2 --collect-only   # more, in pieces
@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from behaviors.imitation import Demonstrations, collect, fit_actor, save_styled, steer_agreement
-from behaviors.policy import PRETRAINED
+from behaviors.learn.imitation import Demonstrations, collect, fit_actor, save_styled, steer_agreement
+from behaviors.learn.policy import PRETRAINED
 
 HIDDEN = (256, 256)
 """As traffic.pt's actor."""

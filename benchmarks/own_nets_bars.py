@@ -31,11 +31,12 @@ import pandas as pd
 from common import write_measured_doc
 from traffic_bars import DRIVING_BARS, bars_table
 
-from behaviors.agents_table import LONG_STANDSTILL_S, STANDSTILL_SPEED, agents_path
-from behaviors.export import read_fcd
-from behaviors.populate import DEFAULT_POLICY, config_from, populate
-from behaviors.realism import Report, measure, read_agents, read_lanes
-from behaviors.sumo_home import sumo_home
+from behaviors.report.agents_table import LONG_STANDSTILL_S, agents_path
+from behaviors.report.export import read_fcd
+from behaviors.report.realism import Report, measure, read_agents, read_lanes
+from behaviors.run.populate import DEFAULT_POLICY, config_from, populate
+from behaviors.sumo.sim import STANDSTILL_SPEED
+from behaviors.sumo.sumo_home import sumo_home
 from sumo_scenarios.build import write_xml
 from sumo_scenarios.osm_like import OSM_LIKE_NAMES, build_osm_like
 

@@ -31,20 +31,20 @@ import pandas as pd
 import torch
 from common import meets_lanekeeping_bar, numbered_checkpoints
 
-from behaviors.env import EnvConfig, create_env
 from behaviors.errors import BehaveError
-from behaviors.evaluate import (
+from behaviors.files import atomic_write_text, ensure_writable_dir
+from behaviors.learn.env import EnvConfig, create_env
+from behaviors.learn.metrics import mean_rows
+from behaviors.learn.policy import load_policy
+from behaviors.learn.train import TrainConfig, prepare_run
+from behaviors.report.realism import SKIP_S
+from behaviors.run.evaluate import (
     EvaluationPlan,
     evaluate,
     realism_markdown,
     run_plan,
     write_report,
 )
-from behaviors.files import atomic_write_text, ensure_writable_dir
-from behaviors.metrics import mean_rows
-from behaviors.policy import load_policy
-from behaviors.realism import SKIP_S
-from behaviors.train import TrainConfig, prepare_run
 
 ROOT = Path(__file__).resolve().parents[1]
 SUMO_LABEL = "SUMO (Krauss + SL2015)"

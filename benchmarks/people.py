@@ -15,7 +15,7 @@ highD). The sumocfg steps 0.2 s (the policies' step) in every run. Then, per see
   agent as it departs, half keepers and half overtakers; lorries stay SUMO's, since `--share` draws
   only car-sized vehicles and no bundled policy drives a lorry).
 
-Each run's FCD is measured by behaviors.people through the 420 m window `--window-start` +420 m,
+Each run's FCD is measured by behaviors.report.people through the 420 m window `--window-start` +420 m,
 after `--warmup` s: per group (cars, lorries), the closest time headways, the share changing lane,
 the mean speeds and the lane-centre offset beside highD's published figures; seeds pooled. Every
 collision SUMO sees (its collision-output: SUMO's vehicles and agents alike) is counted.
@@ -43,8 +43,9 @@ import pandas as pd
 from common import write_measured_doc
 from highway_anchor import cpu_model
 
-from behaviors.export import read_fcd
-from behaviors.people import (
+from behaviors.learn.policy import PRETRAINED
+from behaviors.report.export import read_fcd
+from behaviors.report.people import (
     CARS,
     KS_LIMIT,
     LORRIES,
@@ -57,7 +58,6 @@ from behaviors.people import (
     like_people,
     per_vehicle,
 )
-from behaviors.policy import PRETRAINED
 from sumo_scenarios.osm_like import Way, run_netconvert, write_plain
 
 ROAD = "autobahn2"
@@ -163,7 +163,7 @@ def collisions(path: Path) -> int:
 class Run:
     variant: Variant
     seed: int
-    vehicles: pd.DataFrame  # behaviors.people.per_vehicle's rows
+    vehicles: pd.DataFrame  # behaviors.report.people.per_vehicle's rows
     collisions: int  # SUMO's collision output
     agent_collisions: int  # populate's count of agents' collisions
     agents: int
@@ -380,7 +380,7 @@ def main() -> None:
         "only, each car's mean speed over the group's median against N(33.5, 5.17) over its median (p5 25,",
         "p95 42; highD's road has no limit, ours 130 km/h), the medians shown beside. Shares are judged",
         f'within {100 * SHARE_POINTS:.0f} points (the issue\'s "a few"), distributions within KS',
-        f"{KS_LIMIT:g}; ✗ marks a figure outside. Definitions: behaviors/people.py.",
+        f"{KS_LIMIT:g}; ✗ marks a figure outside. Definitions: behaviors/report/people.py.",
     ])  # fmt: skip
     doc = (
         "# Like people: closest headways, lane changes, speeds and lane keeping through a 420 m window\n\n"

@@ -21,7 +21,7 @@ from bench_populate import STEP_LENGTH, WARMUP_STEPS, Row, build_highway, config
 from common import print_table, progress, write_csv
 from rich.console import Console
 
-from behaviors.populate import DEFAULT_POLICY, POLICY_THREADS, PopulateConfig, PopulateSummary, populate
+from behaviors.run.populate import DEFAULT_POLICY, POLICY_THREADS, PopulateConfig, PopulateSummary, populate
 
 
 @dataclass(frozen=True)

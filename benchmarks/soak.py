@@ -1,6 +1,6 @@
 """Memory of long `behave populate` runs (issue 26): does the process grow with simulated time?
 
-Each case runs `behaviors.populate.populate` twice, each in a fresh process: with learned agents
+Each case runs `behaviors.run.populate.populate` twice, each in a fresh process: with learned agents
 among `behave_background` cars (`--keep-count`, FCD on: what `behave populate` runs), and SUMO
 alone with the same number of vehicles (all `behave_background`, same net, seed and FCD). Each
 process reads its own resident memory (VmRSS in /proc/self/status) every `--every` simulated
@@ -11,7 +11,7 @@ least-squares slope of RSS against simulated time after the first `--warmup` sim
 Cases (`--cases`, comma-separated):
   light          the bundled 3 km highway, 80 agents + 20 SUMO cars, 1 h (issue 26's run, FCD xml)
   dense          the bundled highway, 150 agents + 150 SUMO cars (33 cars per lane-km), 1 h
-  light-parquet  as light, 2 h, FCD in parquet: SUMO writes csv into a pipe, behaviors/fcd_parquet.py
+  light-parquet  as light, 2 h, FCD in parquet: SUMO writes csv into a pipe, behaviors/sumo/fcd_parquet.py
                  writes the row groups (SUMO's own parquet writer grew 100-260 MB per simulated hour)
   day            a 30 km straight 3-lane motorway, 20 agents + 20 SUMO cars, 24 h
 Bar (light, dense, light-parquet): populate grows <= 20 MB per simulated hour, and no more than SUMO
@@ -95,7 +95,7 @@ def rss_mb(field: str = "VmRSS", pid: str = "self") -> float:
 
 def children_rss_mb() -> float:
     """The resident set size of this process's children: populate's parquet reader
-    (behaviors/fcd_parquet.py, a process of its own) is part of what a run holds."""
+    (behaviors/sumo/fcd_parquet.py, a process of its own) is part of what a run holds."""
     me, total = os.getpid(), 0.0
     for entry in os.listdir("/proc"):
         if entry.isdigit():
@@ -111,7 +111,7 @@ def measure(run: Run) -> dict:
     """One populate run in this (fresh) process: RSS every `run.every` simulated seconds."""
     import torch
 
-    from behaviors.populate import POLICY_THREADS, PopulateConfig, populate
+    from behaviors.run.populate import POLICY_THREADS, PopulateConfig, populate
     from sumo_scenarios import get_scenario
 
     torch.set_num_threads(POLICY_THREADS)  # as populate() sets it
@@ -250,10 +250,11 @@ def render(results: dict[str, dict], warmup: float, meta: dict) -> str:
     commands = sorted({r.get("command", "python benchmarks/soak.py") for r in results.values()})
     intro = (
         f"Machine: {meta['cpu']} (`lscpu`). Every case: `behave populate` "
-        "(`behaviors.populate.populate`, `--keep-count`, FCD on, step 0.2 s) in a fresh process, and SUMO "
-        "alone with the same vehicles (all `behave_background`) in another; RSS of the process and its "
-        f"children (populate's parquet reader) every {meta['every']:g} simulated s; growth = least-squares "
-        f"slope after the first {warmup / 60:g} simulated minutes. Bar ({', '.join(BARRED)}): "
+        "(`behaviors.run.populate.populate`, `--keep-count`, FCD on, step 0.2 s) in a fresh process, "
+        "and SUMO alone with the same vehicles (all `behave_background`) in another; RSS of the process "
+        f"and its children (populate's parquet reader) every {meta['every']:g} simulated s; "
+        "growth = least-squares slope after the first "
+        f"{warmup / 60:g} simulated minutes. Bar ({', '.join(BARRED)}): "
         f"<= {BAR_MB_PER_H:g} MB per simulated hour, and no more than SUMO alone where SUMO alone grows."
     )
     parts = [

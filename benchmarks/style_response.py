@@ -1,7 +1,7 @@
 """Does each agent drive as its style asks? (`make styles`, writes docs/styles.md)
 
 The styled driver's agents each draw a style (desired speed, time headway, eagerness to pass, place
-in the lane; behaviors/styles.py), which the agents table records. On the bundled highway, every
+in the lane; behaviors/traffic/styles.py), which the agents table records. On the bundled highway, every
 agent styled, this runs `behave populate` (seeds 0 and 1 by default, the shield on as users run it),
 measures each agent from the FCD and sets what it did against what it asked:
 
@@ -29,12 +29,12 @@ import pandas as pd
 from common import write_measured_doc
 from highway_anchor import cpu_model
 
-from behaviors.agents_table import agents_path
-from behaviors.export import read_fcd
-from behaviors.geometry import load_geometry
-from behaviors.policy import PRETRAINED
-from behaviors.populate import PopulateConfig, populate
-from behaviors.realism import FOLLOW_MIN_SPEED, LEADER_RANGE, REQUIRED, prepare, read_lanes
+from behaviors.learn.policy import PRETRAINED
+from behaviors.report.agents_table import agents_path
+from behaviors.report.export import read_fcd
+from behaviors.report.realism import FOLLOW_MIN_SPEED, LEADER_RANGE, REQUIRED, prepare, read_lanes
+from behaviors.road.geometry import load_geometry
+from behaviors.run.populate import PopulateConfig, populate
 from sumo_scenarios import get_scenario
 
 PAIRS = (

@@ -21,10 +21,18 @@ from pathlib import Path
 import pandas as pd
 from common import write_measured_doc
 
-from behaviors.agents_table import agents_path
-from behaviors.export import read_fcd
-from behaviors.populate import PopulateConfig, populate
-from behaviors.realism import KEEPERS, OTHER_GROUP, OVERTAKERS, measure, read_agents, read_lanes, write_report
+from behaviors.report.agents_table import agents_path
+from behaviors.report.export import read_fcd
+from behaviors.report.realism import (
+    KEEPERS,
+    OTHER_GROUP,
+    OVERTAKERS,
+    measure,
+    read_agents,
+    read_lanes,
+    write_report,
+)
+from behaviors.run.populate import PopulateConfig, populate
 from sumo_scenarios import get_scenario
 
 

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from behaviors.ddpg.checkpoint import load_actor
-from behaviors.env import make_env
-from behaviors.lanes import TRAFFIC_OBS_SIZE
+from behaviors.learn.ddpg.checkpoint import load_actor
+from behaviors.learn.env import make_env
+from behaviors.traffic.lanes import TRAFFIC_OBS_SIZE
 
 
 def main() -> None:

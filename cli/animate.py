@@ -54,7 +54,7 @@ def animate_command(
     verbose: VERBOSE = False,
 ) -> None:
     """Top-down animation: lanes from the net, keepers and overtakers coloured, a time stamp per frame."""
-    from behaviors.animate import AnimateOptions, animate_fcd  # matplotlib: only when drawing
+    from behaviors.report.animate import AnimateOptions, animate_fcd  # matplotlib: only when drawing
 
     level = verbosity(quiet, verbose)
     options = AnimateOptions(

@@ -76,7 +76,8 @@ def evaluate_command(
     """Average the paper's metrics over episodes for every policy and setting (-q: only the files
     and errors; -v: each setting's figures as it finishes)."""
     level = verbosity(quiet, verbose)
-    from behaviors.evaluate import (
+    from behaviors.report.realism import SKIP_S
+    from behaviors.run.evaluate import (
         PAPER_METRICS,
         placed_text,
         plan_evaluation,
@@ -86,7 +87,6 @@ def evaluate_command(
         short_placements,
         write_report,
     )
-    from behaviors.realism import SKIP_S
 
     plan = plan_evaluation(
         list(checkpoints or []), agents=parse_ints(agents), episodes=episodes, behaviour=behaviour,

@@ -10,7 +10,7 @@ import typer
 
 from behaviors.cli.checks import NET
 from behaviors.errors import BehaveError
-from behaviors.export import EXPORT_FORMATS, export_fcd, read_fcd
+from behaviors.report.export import EXPORT_FORMATS, export_fcd, read_fcd
 
 
 def export_command(
@@ -68,8 +68,8 @@ def plot_command(
     ] = None,
 ) -> None:
     """Time-space diagram (by road position) and lateral position over time, coloured by behaviour."""
-    from behaviors.animate import named_net
-    from behaviors.plot import plot_fcd  # matplotlib: only when plotting
+    from behaviors.report.animate import named_net
+    from behaviors.report.plot import plot_fcd  # matplotlib: only when plotting
 
     plot_fcd(read_fcd(fcd, geo=geo), out, title=title or fcd.name, net=net or named_net(fcd))
     typer.echo(f"wrote {out}")

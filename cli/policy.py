@@ -13,7 +13,7 @@ import behaviors
 from behaviors.cli.group import QuickHelpGroup
 
 PRETRAINED = Path(behaviors.__file__).parent / "pretrained"
-"""behaviors.policy.PRETRAINED, named here so that listing needs no torch."""
+"""behaviors.learn.policy.PRETRAINED, named here so that listing needs no torch."""
 MODEL_CARD = PRETRAINED / "MODEL_CARD.md"
 RESULT_LINES = ("evaluation", "screens", "shipped checkpoint")
 """The model card's bullet that `policy list` shows per policy: the first of these a section has."""

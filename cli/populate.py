@@ -22,7 +22,7 @@ from behaviors.files import check_output_path
 from sumo_scenarios import get_scenario
 
 if TYPE_CHECKING:
-    from behaviors.populate import PopulateConfig, PopulateSummary  # torch: only when run
+    from behaviors.run.populate import PopulateConfig, PopulateSummary  # torch: only when run
 
 DEFAULTS = SimpleNamespace(
     net=get_scenario("highway").net, overtakers=4, keepers=4, background=20, duration=180.0,
@@ -32,7 +32,7 @@ DEFAULTS = SimpleNamespace(
 DEFAULT_POLICY = Path(behaviors.__file__).parent / "pretrained" / "traffic.pt"
 DEFAULT_FCD = Path("runs/populate/fcd.xml")
 DEFAULT_JOINED_AGENTS = Path("runs/connect/agents.csv")
-DEFAULT_ORDER = 2  # behaviors.joined.DEFAULT_ORDER, spelled out so that `--help` imports nothing heavy
+DEFAULT_ORDER = 2  # behaviors.sumo.joined.DEFAULT_ORDER, spelled out so that `--help` imports nothing heavy
 
 
 def populate_command(
@@ -204,8 +204,8 @@ def populate_command(
     """Drive learned keepers and overtakers (one batched policy call per step) and write SUMO FCD.
 
     Ctrl-C stops after the step under way and keeps what was simulated (exit code 130)."""
-    from behaviors.agents_table import agents_path
-    from behaviors.populate import PopulateInterrupted, config_from, populate, populate_policy
+    from behaviors.report.agents_table import agents_path
+    from behaviors.run.populate import PopulateInterrupted, config_from, populate, populate_policy
 
     level = verbosity(quiet, verbose)
     if connect is not None:
@@ -262,8 +262,8 @@ def populate_command(
         for name, seconds in summary.phases.items():
             typer.echo(f"phase {name}: {seconds:,.2f} s of {summary.wall_s:,.2f} s wall", err=True)
     if plot is not None:
-        from behaviors.export import read_fcd
-        from behaviors.plot import plot_fcd
+        from behaviors.report.export import read_fcd
+        from behaviors.report.plot import plot_fcd
 
         road = config.net if config.net.is_file() else None  # road positions along it
         plot_fcd(read_fcd(fcd, geo=geo), plot, title=plot_title(config), net=road)
@@ -289,8 +289,8 @@ def joined_command(
     sumocfg: Path | None,
     **given: Any,
 ) -> None:
-    """`behave populate --connect HOST:PORT`: join a running SUMO (behaviors.populate.populate_joined)."""
-    from behaviors.populate import PopulateInterrupted, config_from, populate_joined, populate_policy
+    """`behave populate --connect HOST:PORT`: join a running SUMO (behaviors.run.populate.populate_joined)."""
+    from behaviors.run.populate import PopulateInterrupted, config_from, populate_joined, populate_policy
 
     for option, value in (("--fcd", fcd != DEFAULT_FCD), ("--plot", plot is not None)):
         if value:

@@ -48,10 +48,10 @@ def report_command(
     out = out if out is not None else fcd.parent
     ensure_writable_dir(out)  # an unwritable --out fails now, not after the whole report
 
-    from behaviors.agents_table import agents_path
-    from behaviors.export import read_fcd
-    from behaviors.realism import Lanes, check_options, measure, read_agents, read_lanes, rows
-    from behaviors.realism import write_report as write_realism
+    from behaviors.report.agents_table import agents_path
+    from behaviors.report.export import read_fcd
+    from behaviors.report.realism import Lanes, check_options, measure, read_agents, read_lanes, rows
+    from behaviors.report.realism import write_report as write_realism
 
     check_options(skip_s, group_by)
     check_cells(cell_m, window_s)
@@ -73,7 +73,7 @@ def report_command(
     for path in write_realism(report, out, title=fcd.name, extra=lines):
         typer.echo(f"wrote {path}")
     if cells is not None:
-        from behaviors.flow import write_flow
+        from behaviors.report.flow import write_flow
 
         for path in write_flow(cells, out, title=fcd.name):
             typer.echo(f"wrote {path}")
@@ -91,8 +91,8 @@ def fundamental_diagram(
     df: Any, net: Path | None, group_by: str, cell_m: float, window_s: float
 ) -> tuple[Any, list[str]]:
     """Edie's flow and density per cell and group (None if no cell), and the report's lines on it."""
-    from behaviors.flow import edie_cells, road_from_fcd, road_from_net, summary, summary_markdown
-    from behaviors.realism import group_names
+    from behaviors.report.flow import edie_cells, road_from_fcd, road_from_net, summary, summary_markdown
+    from behaviors.report.realism import group_names
 
     road = road_from_net(net) if net is not None else road_from_fcd(df)
     groups = group_names(df["id"], df.get("type"), group_by)

@@ -90,7 +90,7 @@ def sweep_command(
     run in <out>/sweep.csv and .parquet, the main figures against the share in sweep.png.
     -q: errors only; -v: the whole table with every figure."""
     level = verbosity(quiet, verbose)
-    from behaviors.sweep import Grid, check_grid, resolve_net, resolve_policy, resolve_sumocfg, run_sweep
+    from behaviors.run.sweep import Grid, check_grid, resolve_net, resolve_policy, resolve_sumocfg, run_sweep
 
     if workers is not None:
         check_number("--workers", workers, low=1)

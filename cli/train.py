@@ -164,7 +164,7 @@ def train(
     episode with -v, nothing with -q."""
     given = dict(locals())  # the options as typer parsed them, by name
     level = verbosity(quiet, verbose)
-    from behaviors.train import TrainConfig, prepare_run  # torch: only when training
+    from behaviors.learn.train import TrainConfig, prepare_run  # torch: only when training
 
     check_road(net, sumocfg, driver)
     config = TrainConfig.from_options(**{
@@ -231,8 +231,8 @@ def parse_sizes(text: str) -> tuple[int, ...]:
 def check_road(net: Path | None, sumocfg: Path | None, driver: str) -> None:
     """--net and --sumocfg in the command's words (EnvConfig checks the same in Python's): one road,
     for a driver that trains among traffic."""
-    from behaviors.drivers import make_driver
     from behaviors.errors import BehaveError
+    from behaviors.fleet.drivers import make_driver
 
     if net is not None and sumocfg is not None:
         raise BehaveError("--net and --sumocfg both name a network: the sumocfg's net is used, drop --net")

@@ -16,6 +16,10 @@ PACKAGES = {"behaviors": "behaviors", "sumo_scenarios": "sumo_scenarios", "cli":
 
 ALLOWED_CIRCLES: list[set[str]] = []
 
+LAYERS = ("sumo", "road", "report", "paper", "traffic", "fleet", "learn", "run")
+"""behaviors' folders from the bottom up: a module imports from its own folder or one below it.
+Below them all: `behaviors` itself (errors, files) and sumo_scenarios; above them all: the CLI."""
+
 NET_READER = "sumo_scenarios.net"
 SUMOLIB_NET_READERS_ALLOWED: set[str] = set()
 """Modules allowed to read nets with sumolib: none (realism.read_lanes reads through sumo_scenarios.net)."""
@@ -89,10 +93,10 @@ def circles(graph: dict[str, set[str]]) -> list[set[str]]:
 def test_the_walk_sees_every_kind_of_import() -> None:
     """Module-level, function-level and TYPE_CHECKING imports are all edges."""
     graph = import_graph()
-    assert "behaviors.distributed" in graph["behaviors.train"]  # module level
-    assert "behaviors.train" in graph["behaviors.cli.train"]  # inside the command's function
+    assert "behaviors.learn.distributed" in graph["behaviors.learn.train"]  # module level
+    assert "behaviors.learn.train" in graph["behaviors.cli.train"]  # inside the command's function
     assert "behaviors.errors" in graph["behaviors.cli.train"]  # inside a helper function
-    assert "sumo_scenarios.net" in graph["behaviors.geometry"]
+    assert "sumo_scenarios.net" in graph["behaviors.road.geometry"]
 
 
 def test_no_import_circles() -> None:
@@ -152,3 +156,30 @@ def test_the_net_reader_check_sees_sumolib() -> None:
     ):
         assert reads_nets_with_sumolib(ast.parse(source)), source
     assert not reads_nets_with_sumolib(ast.parse("from sumo_scenarios.net import read_net"))
+
+
+def floor(module: str) -> int:
+    """A module's height in the house: 0 for behaviors' own modules and sumo_scenarios, then its
+    folder's place in LAYERS, the CLI on top."""
+    parts = module.split(".")
+    if parts[0] == "sumo_scenarios" or len(parts) <= 2 or parts[1] not in (*LAYERS, "cli"):
+        return 0
+    return len(LAYERS) + 1 if parts[1] == "cli" else LAYERS.index(parts[1]) + 1
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[tuple[str, str]]:
+    return sorted(
+        (m, t) for m, targets in graph.items() for t in targets if floor(t) > floor(m) and t != "behaviors"
+    )
+
+
+def test_imports_flow_down_the_folders() -> None:
+    graph = import_graph()
+    assert set(LAYERS) == {p.name for p in (ROOT / "behaviors").iterdir() if (p / "__init__.py").exists()}
+    assert not upward_imports(graph), upward_imports(graph)
+
+
+def test_the_floor_check_sees_an_upward_import() -> None:
+    graph = {"behaviors.road.routes": {"behaviors.fleet.handover", "behaviors.sumo.sim", "behaviors.errors"}}
+    assert upward_imports(graph) == [("behaviors.road.routes", "behaviors.fleet.handover")]
+    assert floor("behaviors.cli.main") > floor("behaviors.run.populate") > floor("behaviors.errors")

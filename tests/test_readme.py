@@ -218,9 +218,9 @@ def cli_options() -> set[str]:
 
 
 def is_setting(name: str) -> bool:
-    """`Class.field[.field]`: a field of a settings dataclass of behaviors.actuation (`LaneDriving`,
+    """`Class.field[.field]`: a field of a settings dataclass of behaviors.traffic.actuation (`LaneDriving`,
     `CarFollowing`, ...; every one has defaults), through nested settings (`LaneDriving.following.accel`)."""
-    from behaviors import actuation
+    from behaviors.traffic import actuation
 
     owner, *path = name.split(".")
     found = getattr(actuation, owner, None)
@@ -234,6 +234,12 @@ def is_setting(name: str) -> bool:
     return True
 
 
+def module_named(short: str) -> str:
+    """The import name of behaviors' module `short` (the table names modules without their folder)."""
+    (path,) = (ROOT / "behaviors").glob(f"*/{short}.py")
+    return f"behaviors.{path.parent.name}.{short}"
+
+
 def test_the_rules_table_names_settings_functions_and_tests_that_exist() -> None:
     options = cli_options()
     rows = rules_table()
@@ -244,7 +250,7 @@ def test_the_rules_table_names_settings_functions_and_tests_that_exist() -> None
         modules = []
         for name in named(function):
             module, *attributes = name.split(".")
-            found = importlib.import_module(f"behaviors.{module}")
+            found = importlib.import_module(module_named(module))
             modules.append(found)
             for attribute in attributes:
                 assert hasattr(found, attribute), f"{where}: no {name}"
@@ -261,7 +267,8 @@ def test_the_rules_table_names_settings_functions_and_tests_that_exist() -> None
         assert test == "none" or named(test), where
         for name in named(test):
             file, _, test_name = name.rpartition("::")
-            source = (ROOT / "tests" / (file or "test_traffic.py")).read_text(encoding="utf-8")
+            (path,) = (ROOT / "tests").glob(f"*/{file or 'test_traffic.py'}")
+            source = path.read_text(encoding="utf-8")
             assert f"def {test_name}(" in source, f"{where}: no test {name}"
 
 

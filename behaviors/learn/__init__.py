@@ -1,0 +1,1 @@
+"""Learning: PS-DDPG, the training environments, training, imitation, policies on disk."""

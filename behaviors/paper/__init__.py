@@ -1,0 +1,1 @@
+"""The paper's driver: its 65-value TORCS-like state."""

@@ -1,0 +1,1 @@
+"""SUMO itself: the one access layer (libsumo or TraCI), scenario files, SUMO's outputs."""
