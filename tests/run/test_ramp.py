@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from helpers import behave
-from tests.learn.test_traffic import leaders_of
 
 from behaviors.traffic.actuation import LaneDriving, lane_traffic, letting_in
+from tests.learn.test_traffic import leaders_of
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 

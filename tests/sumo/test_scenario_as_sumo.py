@@ -14,11 +14,11 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from tests.sumo.test_own_scenario import netconvert
 
 from behaviors.report.export import read_fcd
 from behaviors.sumo.scenario_config import read_sumocfg
 from behaviors.sumo.sumo_home import sumo_binary
+from tests.sumo.test_own_scenario import netconvert
 
 pytestmark = pytest.mark.sumo  # every test builds a net with netconvert and runs SUMO
 

@@ -8,8 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tests.run.test_populate_truth import netconvert, read_agents
-from tests.learn.test_traffic import STRAIGHT, one_agent
 
 from behaviors.run.populate import DEFAULT_POLICY, PopulateConfig, collision_incident, populate
 from behaviors.traffic.actuation import CarModel
@@ -17,6 +15,8 @@ from behaviors.traffic.bodies import Bodies
 from behaviors.traffic.lanes import GAP_RANGE, search_radius, surroundings
 from behaviors.traffic.shield import search_reach
 from behaviors.traffic.shield import surroundings as shield_surroundings
+from tests.learn.test_traffic import STRAIGHT, one_agent
+from tests.run.test_populate_truth import netconvert, read_agents
 
 CAR = CarModel()
 LORRY = (16.5, 2.55)

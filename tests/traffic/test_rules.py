@@ -7,9 +7,9 @@ from dataclasses import fields, replace
 
 import numpy as np
 import pytest
-from tests.learn.test_traffic import NO_LEADERS, leaders_of
 
 from behaviors.traffic.actuation import CarModel, LaneCommand, LaneDriving, LaneHabits, Rules, actuate_lanes
+from tests.learn.test_traffic import NO_LEADERS, leaders_of
 
 ALL = Rules()
 

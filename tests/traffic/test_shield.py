@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tests.learn.test_env import keep_lane
 
 from behaviors import make_env
 from behaviors.traffic.actuation import CarModel, actuate
@@ -16,6 +15,7 @@ from behaviors.traffic.shield import (
     side_limits,
     surroundings,
 )
+from tests.learn.test_env import keep_lane
 
 CAR = CarModel()
 

@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from helpers import behave
-from tests.learn.test_traffic import NO_LEADERS, leaders_of
 
 from behaviors.errors import BehaveError
 from behaviors.fleet.drivers import STYLED_LANES, STYLED_OBS_SIZE, StyledDriver
@@ -28,6 +27,7 @@ from behaviors.traffic.styles import (
     headway_of_action,
     read_population,
 )
+from tests.learn.test_traffic import NO_LEADERS, leaders_of
 
 
 def lane_step(
