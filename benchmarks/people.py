@@ -54,6 +54,7 @@ from behaviors.report.people import (
     SHARE_POINTS,
     WINDOW_M,
     Figure,
+    Window,
     compare,
     like_people,
     per_vehicle,
@@ -191,10 +192,8 @@ def run_one(variant: Variant, seed: int, args: argparse.Namespace, net: Path, ro
         raise SystemExit(f"{' '.join(command)} failed ({done.returncode}):\n{done.stderr.strip()}")
     summary = json.loads(done.stdout)
     (folder / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
-    vehicles = per_vehicle(
-        read_fcd(fcd), start=args.window_start, lengths=LENGTHS, groups=GROUPS, default_group=CARS,
-        edge=EDGE, since=args.warmup,
-    )  # fmt: skip
+    window = Window(args.window_start, edge=EDGE, since=args.warmup)
+    vehicles = per_vehicle(read_fcd(fcd), window, lengths=LENGTHS, groups=GROUPS, default_group=CARS)
     cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
     out = Run(variant, seed, vehicles.assign(variant=variant.key, seed=seed),
               collisions(folder / "collisions.xml"), int(summary["collisions"]),

@@ -79,6 +79,7 @@ def evaluate_command(
     from behaviors.report.realism import SKIP_S
     from behaviors.run.evaluate import (
         PAPER_METRICS,
+        EvaluationOptions,
         placed_text,
         plan_evaluation,
         realism_markdown,
@@ -88,12 +89,12 @@ def evaluate_command(
         write_report,
     )
 
-    plan = plan_evaluation(
+    plan = plan_evaluation(EvaluationOptions(
         list(checkpoints or []), agents=parse_ints(agents), episodes=episodes, behaviour=behaviour,
         overtakers=overtakers, keepers=keepers, placements=parse_list(placement), scenario=scenario,
         seed=seed, max_steps=max_steps, baseline=baseline, opponents=opponents, shield=shield,
         net=None if net is None else net.resolve(), sumocfg=None if sumocfg is None else sumocfg.resolve(),
-    )  # fmt: skip
+    ))  # fmt: skip
     console = Console(quiet=level < 0)
     seconds = max_steps * plan.settings[0][1].step_length
     if realism and seconds <= SKIP_S:

@@ -17,7 +17,7 @@ from gymnasium import spaces
 
 from behaviors.errors import BehaveError
 from behaviors.fleet.control import Fleet, Observed, Sensing, road_frame
-from behaviors.fleet.handover import SIGNAL_DISTANCE, SIGNAL_SECONDS, LaneEnds, decide
+from behaviors.fleet.handover import SIGNAL_DISTANCE, SIGNAL_SECONDS, LaneEnds, LanePlace, decide
 from behaviors.paper.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT, AgentFrame, observe
 from behaviors.road.neighbours import neighbours
 from behaviors.road.routes import lane_leads_on
@@ -384,10 +384,11 @@ class TrafficDriver:
         assert r.frame is not None
         half_room = (fleet.geometry.lane_width[r.frame.lane_row] - fleet.car.width) / 2
         ends = LaneEnds(own.lane_ends, own.best_end, own.one_lane_at)
-        handover = decide(
-            ends, r.handed, r.speed, readings.lane_pos, readings.lateral_pos, own.lane_number, lanes,
-            normal, half_room, signal, own.lateral_speed,  # 0 where SUMO drives (`actuate`)
+        place = LanePlace(
+            readings.lane_pos, readings.lateral_pos, own.lane_number, lanes, half_room,
+            own.lateral_speed,  # 0 where SUMO drives (`actuate`)
         )  # fmt: skip
+        handover = decide(ends, place, r.handed, r.speed, normal, signal)
         if handover.take.any():
             taken = np.flatnonzero(handover.take)
             own.lateral_speed[taken] = sim.read_lateral_speeds([r.ids[i] for i in taken])

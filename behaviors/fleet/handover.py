@@ -41,6 +41,20 @@ class LaneEnds:
 
 
 @dataclass(frozen=True)
+class LanePlace:
+    """Per agent, where it is in its lane: `lane_pos`/`lateral_pos` in lane `lane_number` of `lanes`;
+    `half_room` is how far a centre may move before the body meets a line; `lateral_speed` [N]
+    (None: 0) the agents' own sideways speed, + = fast side."""
+
+    lane_pos: np.ndarray
+    lateral_pos: np.ndarray
+    lane_number: np.ndarray
+    lanes: np.ndarray
+    half_room: np.ndarray
+    lateral_speed: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
 class Handover:
     """Which agents SUMO takes this step (`give`) and which it gives back (`take`)."""
 
@@ -52,56 +66,40 @@ def handover_reach(speed: np.ndarray) -> np.ndarray:
     return np.maximum(HANDOVER_DISTANCE, HANDOVER_SECONDS * speed)
 
 
-def straddling_an_ending_lane(
-    ends: LaneEnds,
-    lane_pos: np.ndarray,
-    lateral_pos: np.ndarray,
-    lane_number: np.ndarray,
-    lanes: np.ndarray,
-    reach: np.ndarray,
-    half_room: np.ndarray,
-    lateral_speed: np.ndarray | None = None,
-) -> np.ndarray:
+def straddling_an_ending_lane(ends: LaneEnds, place: LanePlace, reach: np.ndarray) -> np.ndarray:
     """Agents whose body reaches over the line into a neighbouring lane that ends within `reach`:
-    where that lane drops, the road narrows under them. One moving away from that lane (`lateral_speed`
-    [N], + = fast side; None: nobody moves) is on its way out of it, as a car that has just left it
+    where that lane drops, the road narrows under them. One moving away from that lane (`lateral_speed`;
+    None: nobody moves) is on its way out of it, as a car that has just left it
     is: taken for a step or two and given back, its sideways motion jumped at both ends."""
-    leads = ends.own_fast_slow - lane_pos[:, None]
+    lateral_pos, half_room, lane_number = place.lateral_pos, place.half_room, place.lane_number
+    leads = ends.own_fast_slow - place.lane_pos[:, None]
     short = (leads < reach[:, None]) & (ends.own_fast_slow < ends.best[:, None] - LANE_END_MARGIN)
-    away = np.zeros(len(lateral_pos)) if lateral_speed is None else lateral_speed
-    over_fast = (lateral_pos > half_room) & (lane_number < lanes - 1) & short[:, 1] & (away >= 0.0)
+    away = np.zeros(len(lateral_pos)) if place.lateral_speed is None else place.lateral_speed
+    over_fast = (lateral_pos > half_room) & (lane_number < place.lanes - 1) & short[:, 1] & (away >= 0.0)
     over_slow = (lateral_pos < -half_room) & (lane_number > 0) & short[:, 2] & (away <= 0.0)
     return over_fast | over_slow
 
 
 def decide(
     ends: LaneEnds,
+    place: LanePlace,
     handed: np.ndarray,
     speed: np.ndarray,
-    lane_pos: np.ndarray,
-    lateral_pos: np.ndarray,
-    lane_number: np.ndarray,
-    lanes: np.ndarray,
     normal: np.ndarray,
-    half_room: np.ndarray,
     signal: np.ndarray,
-    lateral_speed: np.ndarray | None = None,
 ) -> Handover:
-    """Who SUMO takes and who it gives back, for agents at `lane_pos`/`lateral_pos` in lane
-    `lane_number` of `lanes` (`normal`: on a normal edge, not inside a junction), with a red or
-    yellow `signal` ahead; `half_room` is how far a centre may move before the body meets a line;
-    `lateral_speed` [N] (None: 0) the agents' own sideways speed, + = fast side."""
+    """Who SUMO takes and who it gives back, for agents at `place` (`normal`: on a normal edge, not
+    inside a junction), with a red or yellow `signal` ahead."""
+    lane_pos, lanes = place.lane_pos, place.lanes
     own_end = ends.own_fast_slow[:, 0]
     own_left = own_end - lane_pos
     reach = handover_reach(speed)
     one_lane_left = ends.one_lane_at - lane_pos
     # a ramp usually leaves from lane 0: SUMO gets the reach once per lane it has to cross
-    ramp_reach = reach * (1 + np.maximum(lane_number, 0))
+    ramp_reach = reach * (1 + np.maximum(place.lane_number, 0))
     ending = (own_left < reach) & (ends.best > own_end + LANE_END_MARGIN)
     ending |= one_lane_left < ramp_reach  # leaving the carriageway: SUMO takes the car to the ramp
-    straddling = straddling_an_ending_lane(
-        ends, lane_pos, lateral_pos, lane_number, lanes, reach, half_room, lateral_speed
-    )
+    straddling = straddling_an_ending_lane(ends, place, reach)
     ending |= straddling
     needs_sumo = (normal & (ending | (lanes < 2))) | signal
     free = (
@@ -111,6 +109,6 @@ def decide(
         & (one_lane_left >= ramp_reach + HANDBACK_MARGIN)
         & ~straddling
         & ~signal
-        & (np.abs(lateral_pos) <= half_room - HANDBACK_INSIDE)
+        & (np.abs(place.lateral_pos) <= place.half_room - HANDBACK_INSIDE)
     )
     return Handover(give=needs_sumo & ~handed, take=handed & free)

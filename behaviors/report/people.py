@@ -141,23 +141,31 @@ def _base_type(types: pd.Series) -> pd.Series:
     return types.astype(str).str.split("@", n=1).str[0]
 
 
+@dataclass(frozen=True)
+class Window:
+    """Where and when vehicles are watched: positions [start, start + length] along `edge` (None:
+    every normal edge), times `since` (the warm-up before it is skipped) to `until`; a vehicle counts
+    when it drove over at least `min_cover` of the window."""
+
+    start: float
+    length: float = WINDOW_M
+    edge: str | None = None
+    since: float = 0.0
+    until: float = math.inf
+    min_cover: float = MIN_COVER
+
+
 def per_vehicle(
     df: pd.DataFrame,
+    window: Window,
     *,
-    start: float,
     lengths: Mapping[str, float],
     groups: Mapping[str, str],
     default_group: str | None = None,
-    length: float = WINDOW_M,
-    edge: str | None = None,
     lanes: Lanes | None = None,
-    since: float = 0.0,
-    until: float = math.inf,
-    min_cover: float = MIN_COVER,
 ) -> pd.DataFrame:
-    """One row per vehicle that drove through the window [start, start + length] (positions along
-    `edge`, or along every normal edge: one straight edge is the road this is made for), seen from
-    time `since` (the warm-up before it is skipped) to `until`, over at least `min_cover` of the window.
+    """One row per vehicle that drove through the window (one straight edge is the road this is made
+    for).
 
     `lengths`: vType -> length in metres (the leader's rear is its front minus its length; types not
     named are 5 m); `groups`: vType -> group (`cars`, `lorries`), types not named go to
@@ -173,9 +181,10 @@ def per_vehicle(
     """
     if "type" not in df.columns:
         raise BehaveError("the FCD has no type column: cars and lorries are told apart by their vType")
+    start, length, edge, min_cover = window.start, window.length, window.edge, window.min_cover
     if not length > 0 or not 0 < min_cover <= 1:
         raise BehaveError(f"bad window: length {length}, cover {min_cover}")
-    df = df[(df["time"] >= since) & (df["time"] <= until)].dropna(subset=list(REQUIRED))
+    df = df[(df["time"] >= window.since) & (df["time"] <= window.until)].dropna(subset=list(REQUIRED))
     if df.empty:
         return pd.DataFrame(columns=list(COLUMNS))
     ids = pd.Index(pd.factorize(df["id"])[1].astype(str))  # prepare's vehicle codes, the same factorize
@@ -210,7 +219,7 @@ def per_vehicle(
         return pd.DataFrame(columns=list(COLUMNS))
     out = pd.DataFrame(index=whole)
     out["id"] = ids[whole]
-    out["type"] = _last_type_in_window(df, start, length, edge).reindex(out["id"]).to_numpy()
+    out["type"] = _last_type_in_window(df, window).reindex(out["id"]).to_numpy()
     base = _base_type(out["type"])
     out["group"] = base.map(lambda t: groups.get(t, default_group)).to_numpy()
     out["closest_thw"] = (
@@ -230,15 +239,15 @@ def per_vehicle(
     return out.reset_index(drop=True)[list(COLUMNS)]
 
 
-def _last_type_in_window(df: pd.DataFrame, start: float, length: float, edge: str | None) -> pd.Series:
+def _last_type_in_window(df: pd.DataFrame, window: Window) -> pd.Series:
     """Per vehicle id: the vType of its last record in the window."""
     lane = df["lane"].astype(str)
     on_road = ~lane.str.startswith(":")
-    if edge is not None:
-        on_road &= lane.str.rpartition("_")[0] == edge
-    seen = df[on_road & (df["pos"] >= start) & (df["pos"] <= start + length)].sort_values(
-        "time", kind="stable"
-    )
+    if window.edge is not None:
+        on_road &= lane.str.rpartition("_")[0] == window.edge
+    seen = df[
+        on_road & (df["pos"] >= window.start) & (df["pos"] <= window.start + window.length)
+    ].sort_values("time", kind="stable")
     return seen.groupby(seen["id"].astype(str))["type"].last().astype(str)
 
 

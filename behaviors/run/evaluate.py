@@ -111,25 +111,9 @@ class EvaluationPlan:
     seed: int
 
 
-def plan_evaluation(
-    checkpoints: list[Path],
-    *,
-    agents: list[int],
-    episodes: int,
-    behaviour: str | None,
-    overtakers: int,
-    keepers: int,
-    placements: list[str] | None,
-    scenario: str | None,
-    seed: int,
-    max_steps: int,
-    baseline: str | None,
-    opponents: int | None = None,
-    shield: bool = False,
-    net: Path | None = None,
-    sumocfg: Path | None = None,
-) -> EvaluationPlan:
-    """Check every option against the policies before anything runs; BehaveError names the problem.
+@dataclass(frozen=True)
+class EvaluationOptions:
+    """What `behave evaluate` was asked for, checked by plan_evaluation.
 
     `checkpoints`: anything policy.load_policy takes (files, run directories, bundled names), or "rules"
     (policy.rules_policy: the traffic driver's rules with no network, as a baseline); their
@@ -140,6 +124,29 @@ def plan_evaluation(
     `net`/`sumocfg`: a user's road instead of `scenario` (drivers among traffic), as `behave train
     --net/--sumocfg` trains on it: SUMO's cars at drawn densities, or the sumocfg's own traffic.
     """
+
+    checkpoints: list[Path]
+    agents: list[int]
+    episodes: int
+    behaviour: str | None
+    overtakers: int
+    keepers: int
+    placements: list[str] | None
+    scenario: str | None
+    seed: int
+    max_steps: int
+    baseline: str | None
+    opponents: int | None = None
+    shield: bool = False
+    net: Path | None = None
+    sumocfg: Path | None = None
+
+
+def plan_evaluation(options: EvaluationOptions) -> EvaluationPlan:
+    """Check every option against the policies before anything runs; BehaveError names the problem."""
+    checkpoints, baseline, episodes = options.checkpoints, options.baseline, options.episodes
+    placements, opponents, scenario = options.placements, options.opponents, options.scenario
+    net, sumocfg = options.net, options.sumocfg
     if not checkpoints and baseline is None:
         raise BehaveError("give at least one checkpoint (or --baseline sumo)")
     if baseline not in (None, BASELINE):
@@ -148,7 +155,7 @@ def plan_evaluation(
         raise BehaveError(f"episodes must be positive, got {episodes}")
     policies = [rules_policy() if str(path) == RULES else load_policy(path) for path in checkpoints]
     driver = common_driver(policies)
-    behaviour = behaviour or (policies[0].behaviour if policies else "lanekeeping")
+    behaviour = options.behaviour or (policies[0].behaviour if policies else "lanekeeping")
     if behaviour not in BEHAVIOURS:
         raise BehaveError(f"unknown behaviour '{behaviour}' (choose from {', '.join(BEHAVIOURS)})")
     size = make_driver(driver).obs_size(behaviour == "multi")
@@ -162,20 +169,24 @@ def plan_evaluation(
         refuse_paper_options(driver, baseline, placements, opponents)
     check_own_road(net, sumocfg, scenario, driver, among_traffic)
     home = TRAINING_ROADS if among_traffic else "ring"
-    base = EnvConfig(scenario=scenario or home, driver=driver, behaviour=behaviour, max_steps=max_steps,
-                     opponents=opponents, shield=shield, net=net, sumocfg=sumocfg)  # fmt: skip
+    base = EnvConfig(scenario=scenario or home, driver=driver, behaviour=behaviour,
+                     max_steps=options.max_steps, opponents=opponents, shield=options.shield, net=net,
+                     sumocfg=sumocfg)  # fmt: skip
     if behaviour == "multi":
         settings = multi_settings(
-            base, overtakers, keepers, None if among_traffic else placements or ["A", "B", "C"]
+            base,
+            options.overtakers,
+            options.keepers,
+            None if among_traffic else placements or ["A", "B", "C"],
         )
     else:
-        settings = agent_settings(base, agents, placements)
+        settings = agent_settings(base, options.agents, placements)
     for _, config in settings:
         create_env(config).close()  # validates scenario, counts and capacity before any long run
     runs: list[tuple[str, Policy | None]] = [(policy.label, policy) for policy in policies]
     if baseline:
         runs.append((f"{BASELINE} (Krauss + SL2015)", None))
-    return EvaluationPlan(runs, settings, episodes, seed)
+    return EvaluationPlan(runs, settings, episodes, options.seed)
 
 
 def common_driver(policies: list[Policy]) -> str:

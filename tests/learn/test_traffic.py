@@ -13,7 +13,7 @@ import pytest
 
 from behaviors.fleet.control import Fleet, moves_to_send
 from behaviors.fleet.drivers import PaperDriver, TrafficDriver, make_driver
-from behaviors.fleet.handover import HANDOVER_DISTANCE, LaneEnds, straddling_an_ending_lane
+from behaviors.fleet.handover import HANDOVER_DISTANCE, LaneEnds, LanePlace, straddling_an_ending_lane
 from behaviors.learn import traffic_env
 from behaviors.learn.env import make_env
 from behaviors.learn.traffic_env import CRAWL_CARS, CRAWL_GAP, CRAWL_SPEED, queue_places
@@ -605,10 +605,10 @@ def test_sumo_takes_a_car_over_the_line_of_an_ending_lane_unless_it_is_moving_aw
 
     def taken(lateral_speed: float | None) -> bool:
         speed = None if lateral_speed is None else np.array([lateral_speed])
-        return bool(straddling_an_ending_lane(
-            ends, np.zeros(1), np.array([-1.15]), np.array([1]), np.array([3]), np.array([250.0]),
-            np.array([0.85]), speed,
-        )[0])  # fmt: skip
+        place = LanePlace(
+            np.zeros(1), np.array([-1.15]), np.array([1]), np.array([3]), np.array([0.85]), speed
+        )
+        return bool(straddling_an_ending_lane(ends, place, np.array([250.0]))[0])
 
     assert taken(None) and taken(0.0) and taken(-0.3)  # holding there, or drifting towards it
     assert not taken(0.4)  # just out of it, on its way to the own lane's centre

@@ -16,6 +16,7 @@ from behaviors.report.people import (
     HIGHD_LORRIES,
     LORRIES,
     Figure,
+    Window,
     compare,
     ks_distance,
     like_people,
@@ -58,7 +59,7 @@ def following() -> pd.DataFrame:
 
 
 def test_closest_headway_speed_and_offset_in_the_window() -> None:
-    out = per_vehicle(following(), start=100, length=100, lengths=LENGTHS, groups=GROUPS).set_index("id")
+    out = per_vehicle(following(), Window(100, 100), lengths=LENGTHS, groups=GROUPS).set_index("id")
     assert list(out.index) == ["a", "b"]
     assert out.loc["b", "closest_thw"] == pytest.approx(0.8)
     assert math.isnan(out.loc["a", "closest_thw"])  # no leader
@@ -73,17 +74,15 @@ def test_closest_headway_speed_and_offset_in_the_window() -> None:
 def test_the_leaders_length_comes_from_its_type() -> None:
     """Taken for 5 m (its type not named), the lorry leaves a gap of 71.5 - 5 t: 31.5 m at t = 8,
     1.26 s."""
-    out = per_vehicle(following(), start=100, length=100, lengths={}, groups=GROUPS).set_index("id")
+    out = per_vehicle(following(), Window(100, 100), lengths={}, groups=GROUPS).set_index("id")
     assert out.loc["b", "closest_thw"] == pytest.approx(31.5 / 25)
 
 
 def test_groups_and_unknown_types() -> None:
     df = following()
-    only_lorries = per_vehicle(df, start=100, length=100, lengths=LENGTHS, groups={"lorry": LORRIES})
+    only_lorries = per_vehicle(df, Window(100, 100), lengths=LENGTHS, groups={"lorry": LORRIES})
     assert list(only_lorries["id"]) == ["a"]  # `car` is in no group and no default: left out
-    both = per_vehicle(
-        df, start=100, length=100, lengths=LENGTHS, groups={"lorry": LORRIES}, default_group=CARS
-    )
+    both = per_vehicle(df, Window(100, 100), lengths=LENGTHS, groups={"lorry": LORRIES}, default_group=CARS)
     assert list(both["group"]) == [LORRIES, CARS]
 
 
@@ -91,8 +90,8 @@ def test_warm_up_and_partial_passes_are_left_out() -> None:
     """From t = 6 on the car is seen at 150-200 m only (half the window): not a whole pass; the lorry,
     seen from 196.5 m, no more."""
     df = following()
-    assert per_vehicle(df, start=100, length=100, lengths=LENGTHS, groups=GROUPS, since=6.0).empty
-    cut = per_vehicle(df, start=100, length=100, lengths=LENGTHS, groups=GROUPS, since=6.0, min_cover=0.5)
+    assert per_vehicle(df, Window(100, 100, since=6.0), lengths=LENGTHS, groups=GROUPS).empty
+    cut = per_vehicle(df, Window(100, 100, since=6.0, min_cover=0.5), lengths=LENGTHS, groups=GROUPS)
     assert list(cut["id"]) == ["b"]
     # the car's headway only counts from t = 6 (gap 30 m, 1.2 s) to t = 8 (0.8 s)
     assert cut["closest_thw"].iloc[0] == pytest.approx(0.8)
@@ -103,7 +102,7 @@ def test_slow_cars_have_no_headway() -> None:
     """Below 5 m/s following is queueing: no closest headway."""
     t = np.arange(0, 40.01, STEP)
     df = table(track("a", "car", t, 20 + 4 * t, 4.0, "e_0"), track("b", "car", t, 4 * t, 4.0, "e_0"))
-    out = per_vehicle(df, start=40, length=100, lengths=LENGTHS, groups=GROUPS).set_index("id")
+    out = per_vehicle(df, Window(40, 100), lengths=LENGTHS, groups=GROUPS).set_index("id")
     assert math.isnan(out.loc["b", "closest_thw"])
     assert out.loc["b", "mean_speed"] == pytest.approx(4.0)
 
@@ -116,7 +115,7 @@ def test_lane_changes_inside_and_outside_the_window() -> None:
     pos = 30 * t
     c = track("c", "car", t, pos, 30.0, np.where(pos < 150, "e_0", "e_1"), 0.2)
     d = track("d", "car", t + 100, pos, 30.0, np.where(pos < 240, "e_1", "e_0"), 0.0)
-    out = per_vehicle(table(c, d), start=100, length=100, lengths=LENGTHS, groups=GROUPS).set_index("id")
+    out = per_vehicle(table(c, d), Window(100, 100), lengths=LENGTHS, groups=GROUPS).set_index("id")
     assert bool(out.loc["c", "changed_lane"]) and out.loc["c", "lane_changes"] == 1
     assert not out.loc["d", "changed_lane"] and out.loc["d", "lane_changes"] == 0
     assert out.loc["c", "mean_offset"] == pytest.approx(0.2)
@@ -126,8 +125,8 @@ def test_lane_changes_inside_and_outside_the_window() -> None:
 def test_other_edges_are_not_the_window() -> None:
     df = following()
     df["lane"] = df["lane"].str.replace("e_", "f_").astype(pd.StringDtype())
-    assert per_vehicle(df, start=100, length=100, lengths=LENGTHS, groups=GROUPS, edge="e").empty
-    assert len(per_vehicle(df, start=100, length=100, lengths=LENGTHS, groups=GROUPS, edge="f")) == 2
+    assert per_vehicle(df, Window(100, 100, edge="e"), lengths=LENGTHS, groups=GROUPS).empty
+    assert len(per_vehicle(df, Window(100, 100, edge="f"), lengths=LENGTHS, groups=GROUPS)) == 2
 
 
 def test_the_fitted_references() -> None:

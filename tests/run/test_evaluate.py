@@ -15,7 +15,7 @@ from behaviors.learn.ddpg.checkpoint import save_checkpoint
 from behaviors.learn.ddpg.networks import Actor
 from behaviors.learn.env import OVERTAKER_TYPE, StepBatch
 from behaviors.learn.metrics import EpisodeStats, agent_runs, summary
-from behaviors.run.evaluate import PAPER_METRICS, plan_evaluation
+from behaviors.run.evaluate import PAPER_METRICS, EvaluationOptions, plan_evaluation
 from behaviors.traffic.rewards import RewardTerms
 
 
@@ -104,13 +104,14 @@ def test_bad_input_is_refused_before_anything_runs(checkpoint, kwargs, message):
                "keepers": 0, "placements": None, "scenario": "tiny", "seed": 0, "max_steps": 10,
                "baseline": None, **kwargs}  # fmt: skip
     with pytest.raises(BehaveError, match=message):
-        plan_evaluation(**options)
+        plan_evaluation(EvaluationOptions(**options))
 
 
 def test_opponents_and_the_shield_reach_every_setting(checkpoint):
-    plan = plan_evaluation([checkpoint], agents=[1, 2], episodes=1, behaviour="overtaking", overtakers=0,
-                           keepers=0, placements=None, scenario="ring", seed=0, max_steps=10, baseline=None,
-                           opponents=3, shield=True)  # fmt: skip
+    options = EvaluationOptions([checkpoint], agents=[1, 2], episodes=1, behaviour="overtaking", overtakers=0,
+                                keepers=0, placements=None, scenario="ring", seed=0, max_steps=10,
+                                baseline=None, opponents=3, shield=True)  # fmt: skip
+    plan = plan_evaluation(options)
     assert [(c.n_opponents, c.shield) for _, c in plan.settings] == [(3, True), (3, True)]
 
 
@@ -118,14 +119,14 @@ def test_a_traffic_policy_gets_its_driver_its_roads_and_four_plus_four_agents():
     options = {"agents": [], "episodes": 1, "behaviour": None, "overtakers": 0, "keepers": 0,
                "placements": None, "scenario": None, "seed": 0, "max_steps": 10,
                "baseline": None}  # fmt: skip
-    plan = plan_evaluation([Path("traffic")], **options)
+    plan = plan_evaluation(EvaluationOptions([Path("traffic")], **options))
     [(label, config)] = plan.settings
     assert (config.driver, config.scenario, config.behaviour) == ("traffic", "roads", "multi")
     assert (config.overtakers, config.keepers, label) == (4, 4, "4 overtakers + 4 keepers")
     with pytest.raises(BehaveError, match="--baseline set the paper's formations"):
-        plan_evaluation([Path("traffic")], **{**options, "baseline": "sumo"})
+        plan_evaluation(EvaluationOptions([Path("traffic")], **{**options, "baseline": "sumo"}))
     with pytest.raises(BehaveError, match="different driver models"):
-        plan_evaluation([Path("traffic"), Path("multi")], **options)
+        plan_evaluation(EvaluationOptions([Path("traffic"), Path("multi")], **options))
 
 
 @pytest.mark.sumo

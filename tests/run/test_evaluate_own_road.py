@@ -15,7 +15,13 @@ from behaviors.errors import BehaveError
 from behaviors.learn.gym_env import ENV_ID, longest_drive, room_ahead
 from behaviors.learn.metrics import EpisodeStats, agent_runs, mean_rows, summary
 from behaviors.road.routes import RouteGraph
-from behaviors.run.evaluate import markdown_table, placed_text, plan_evaluation, short_placements
+from behaviors.run.evaluate import (
+    EvaluationOptions,
+    markdown_table,
+    placed_text,
+    plan_evaluation,
+    short_placements,
+)
 from sumo_scenarios.osm_like import Demand, OsmLikeNet, build_osm_like
 
 PLAN = {"agents": [], "episodes": 1, "behaviour": None, "overtakers": 1, "keepers": 1, "placements": None,
@@ -94,12 +100,12 @@ def test_evaluate_on_a_users_net_and_sumocfg(tmp_path: Path, motorway: OsmLikeNe
 def test_evaluate_road_options_are_checked_before_anything_runs(tmp_path: Path) -> None:
     net, cfg = tmp_path / "n.net.xml", tmp_path / "s.sumocfg"
     with pytest.raises(BehaveError, match="--net and --sumocfg both name a network"):
-        plan_evaluation([Path("traffic")], **PLAN, net=net, sumocfg=cfg)
+        plan_evaluation(EvaluationOptions([Path("traffic")], **PLAN, net=net, sumocfg=cfg))
     with pytest.raises(BehaveError, match="--scenario and --net both name a road"):
-        plan_evaluation([Path("traffic")], **{**PLAN, "scenario": "roads"}, net=net)
+        plan_evaluation(EvaluationOptions([Path("traffic")], **{**PLAN, "scenario": "roads"}, net=net))
     with pytest.raises(BehaveError, match="--sumocfg drives the policies among SUMO's traffic"):
-        plan_evaluation([Path("lanekeeping")], **{**PLAN, "overtakers": 0, "keepers": 0, "agents": [2]},
-                        sumocfg=cfg)  # fmt: skip
+        plan_evaluation(EvaluationOptions([Path("lanekeeping")], **{**PLAN, "overtakers": 0, "keepers": 0,
+                                                                    "agents": [2]}, sumocfg=cfg))  # fmt: skip
     done = behave("evaluate", "traffic", "--net", str(net))
     assert done.returncode == 2 and "network file not found" in done.stderr
 
