@@ -89,7 +89,10 @@ def child(mode: str, cfg: Path, cars: int, steps: int) -> dict[str, float]:
     import torch
 
     from behaviors.learn.traffic_env import VTYPES
-    from behaviors.run.populate import POLICY_THREADS, Population, config_from, joinable
+    from behaviors.run.populate import joinable
+    from behaviors.run.populate_config import config_from
+    from behaviors.run.population import Population
+    from behaviors.run.precision import POLICY_THREADS
     from behaviors.sumo.joined import Address, JoinedSim
     from behaviors.sumo.scenario_config import read_sumocfg, unrandom
     from behaviors.sumo.sim import COLLISION_OPTIONS

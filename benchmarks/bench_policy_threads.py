@@ -23,7 +23,8 @@ import torch
 from common import print_table
 from rich.console import Console
 
-from behaviors.run.populate import POLICY_THREADS, PopulateConfig, populate_policy
+from behaviors.run.populate_config import PopulateConfig, populate_policy
+from behaviors.run.precision import POLICY_THREADS
 
 
 def spin(seconds: float) -> None:
@@ -91,7 +92,7 @@ def main() -> None:
     title = (
         f"batched actor call, {args.agents:,} agents, {args.work_ms:g} ms own work between calls, "
         f"{args.rounds} x {args.calls} calls, precision {args.precision} "
-        f"(populate.POLICY_THREADS = {POLICY_THREADS})"
+        f"(precision.POLICY_THREADS = {POLICY_THREADS})"
     )
     header = ["busy process beside", "threads", "median ms", "p90 ms", "p99 ms", "mean ms"]
     print_table(console, title, header, rows)

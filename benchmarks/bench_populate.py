@@ -59,7 +59,10 @@ from rich.console import Console
 
 from behaviors.learn.ddpg.checkpoint import load_checkpoint
 from behaviors.paper.sensors import OBS_SIZE_WITH_ID
-from behaviors.run.populate import DEFAULT_POLICY, POLICY_THREADS, PopulateConfig, Population, partial_path
+from behaviors.run.fcd_sealing import partial_path
+from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig
+from behaviors.run.population import Population
+from behaviors.run.precision import POLICY_THREADS
 from behaviors.traffic.lanes import TRAFFIC_OBS_SIZE
 from sumo_scenarios.build import build_straight
 

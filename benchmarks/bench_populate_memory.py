@@ -25,7 +25,10 @@ import torch
 from common import print_table
 from rich.console import Console
 
-from behaviors.run.populate import POLICY_THREADS, PopulateConfig, Population, partial_path
+from behaviors.run.fcd_sealing import partial_path
+from behaviors.run.populate_config import PopulateConfig
+from behaviors.run.population import Population
+from behaviors.run.precision import POLICY_THREADS
 from sumo_scenarios import get_scenario
 
 

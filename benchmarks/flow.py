@@ -43,7 +43,8 @@ from common import write_measured_doc
 from behaviors.report.export import read_fcd
 from behaviors.report.flow import ALL, RoadEdges, edie_cells, region, road_from_net
 from behaviors.report.realism import THW_LIMIT, group_names, headways, prepare, read_lanes
-from behaviors.run.populate import DEFAULT_POLICY, PopulateConfig, populate
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig
 from sumo_scenarios import get_scenario
 from sumo_scenarios.build import write_xml
 from sumo_scenarios.osm_like import Chain, run_netconvert, write_plain

@@ -21,7 +21,10 @@ from bench_populate import STEP_LENGTH, WARMUP_STEPS, Row, build_highway, config
 from common import print_table, progress, write_csv
 from rich.console import Console
 
-from behaviors.run.populate import DEFAULT_POLICY, POLICY_THREADS, PopulateConfig, PopulateSummary, populate
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig
+from behaviors.run.precision import POLICY_THREADS
+from behaviors.run.records import PopulateSummary
 
 
 @dataclass(frozen=True)

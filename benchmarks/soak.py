@@ -111,7 +111,9 @@ def measure(run: Run) -> dict:
     """One populate run in this (fresh) process: RSS every `run.every` simulated seconds."""
     import torch
 
-    from behaviors.run.populate import POLICY_THREADS, PopulateConfig, populate
+    from behaviors.run.populate import populate
+    from behaviors.run.populate_config import PopulateConfig
+    from behaviors.run.precision import POLICY_THREADS
     from sumo_scenarios import get_scenario
 
     torch.set_num_threads(POLICY_THREADS)  # as populate() sets it

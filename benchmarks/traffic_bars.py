@@ -32,7 +32,8 @@ from behaviors.report.realism import (
     read_lanes,
     write_report,
 )
-from behaviors.run.populate import PopulateConfig, populate
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import PopulateConfig
 from sumo_scenarios import get_scenario
 
 

@@ -22,7 +22,8 @@ from behaviors.files import check_output_path
 from sumo_scenarios import get_scenario
 
 if TYPE_CHECKING:
-    from behaviors.run.populate import PopulateConfig, PopulateSummary  # torch: only when run
+    from behaviors.run.populate_config import PopulateConfig  # torch: only when run, as PopulateSummary
+    from behaviors.run.records import PopulateSummary
 
 DEFAULTS = SimpleNamespace(
     net=get_scenario("highway").net, overtakers=4, keepers=4, background=20, duration=180.0,
@@ -205,7 +206,8 @@ def populate_command(
 
     Ctrl-C stops after the step under way and keeps what was simulated (exit code 130)."""
     from behaviors.report.agents_table import agents_path
-    from behaviors.run.populate import PopulateInterrupted, config_from, populate, populate_policy
+    from behaviors.run.populate import PopulateInterrupted, populate
+    from behaviors.run.populate_config import config_from, populate_policy
 
     level = verbosity(quiet, verbose)
     if connect is not None:
@@ -290,7 +292,8 @@ def joined_command(
     **given: Any,
 ) -> None:
     """`behave populate --connect HOST:PORT`: join a running SUMO (behaviors.run.populate.populate_joined)."""
-    from behaviors.run.populate import PopulateInterrupted, config_from, populate_joined, populate_policy
+    from behaviors.run.populate import PopulateInterrupted, populate_joined
+    from behaviors.run.populate_config import config_from, populate_policy
 
     for option, value in (("--fcd", fcd != DEFAULT_FCD), ("--plot", plot is not None)):
         if value:

@@ -16,8 +16,8 @@ from helpers import behave
 from test_own_scenario import netconvert
 
 from behaviors.cli.policy import MODEL_CARD, model_card_lines
+from behaviors.learn.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.report.export import read_fcd
-from behaviors.run.populate import KEEPER_TYPE, OVERTAKER_TYPE
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -141,7 +141,7 @@ def test_share_leaves_vehicles_of_another_size_to_sumo_and_json_has_sumos_figure
 @pytest.mark.sumo
 def test_plot_titles_say_what_the_run_was(tmp_path: Path) -> None:
     from behaviors.cli.populate import plot_title
-    from behaviors.run.populate import config_from
+    from behaviors.run.populate_config import config_from
 
     cfg = long_vehicles_scenario(tmp_path)
     assert plot_title(config_from(cfg, share=0.25, seed=3)).startswith(

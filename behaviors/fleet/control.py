@@ -5,7 +5,7 @@ SUMO commands per agent, whatever their driver.
 road, how long they have been stuck), reads their lanes from one read of SUMO, lets its `Driver`
 (drivers.py) turn that into observations and actions into moves, and writes SUMO: the moves, and
 the hand-overs to SUMO's own driver (handover.py) in a phase of their own. Which agents exist and
-when they leave is the caller's business (paper_env.py and traffic_env.py for training, populate.py for
+when they leave is the caller's business (paper_env.py and traffic_env.py for training, population.py for
 any network).
 """
 

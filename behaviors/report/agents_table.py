@@ -22,7 +22,7 @@ COLUMNS = ("id", "behaviour", "vtype", "policy", "depart_s", "end_s", "end_reaso
 INCIDENT_COLUMNS = ("incident_side", "incident_lane", "incident_lane_offset_m", "incident_other",
                     "incident_speed_mps", "incident_other_speed_mps", "incident_headway_s",
                     "incident_lateral_gap_m")  # fmt: skip
-"""populate's: how a collision or off-track looked (populate.Incident); empty for the other agents."""
+"""populate's: how a collision or off-track looked (records.Incident); empty for the other agents."""
 STYLE_COLUMNS = ("style_speed_factor", "style_time_headway_s", "style_eagerness", "style_lane_bias_m")
 """populate's: the style each agent drew (styles.Styles: desired speed as a share of the limit, the
 headway it wants, its eagerness to pass, where in its lane it holds itself); a driver without styles

@@ -96,7 +96,7 @@ class Point:
     step_length: float | None = None
     shield: bool = True
     agent_settings: bool = (
-        False  # without agents, run as with agents (populate.config_from): a share 0 baseline
+        False  # without agents, run as with agents (populate_config.config_from): a share 0 baseline
     )
 
     @property
@@ -127,7 +127,7 @@ class Point:
     def config(self, fcd: Path, notes: list[str] | None = None, outputs: Path | None = None) -> Any:
         """populate's PopulateConfig of this point, writing its FCD to `fcd` (and a sumocfg's own outputs
         into `outputs`; None: where the scenario names them); `notes` as config_from."""
-        from behaviors.run.populate import config_from
+        from behaviors.run.populate_config import config_from
 
         given: dict[str, Any] = {
             "overtakers": self.overtakers, "keepers": self.keepers, "background": self.background,
@@ -202,7 +202,7 @@ def check_grid(grid: Grid, notes: list[str] | None = None) -> list[Point]:
             raise BehaveError(f"{name} names no value")
     points = expand(grid)
     from behaviors.learn.policy import load_policy  # torch: only once the options are checked
-    from behaviors.run.populate import check_fits
+    from behaviors.run.populate_config import check_fits
 
     policies = {spec: load_policy(Path(spec)) for spec in _unique(grid.policies)}
     said: list[str] = []

@@ -9,11 +9,13 @@ import sys
 
 import pytest
 
-import behaviors.run.populate as populate_module
+import behaviors.run.populate_config as populate_config
+from behaviors.errors import BehaveError
 from behaviors.report.agents_table import agents_path
 from behaviors.report.export import read_fcd
 from behaviors.report.realism import KEEPERS, OVERTAKERS, measure, read_agents, read_lanes
-from behaviors.run.populate import PopulateConfig, config_from, populate
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import PopulateConfig, config_from
 from sumo_scenarios import get_scenario
 
 
@@ -48,7 +50,7 @@ def test_the_rules_driver_reads_no_policy_file(tmp_path, monkeypatch):
     def no_loading(*args, **kwargs):
         raise AssertionError("the rules driver loaded a policy")
 
-    monkeypatch.setattr(populate_module, "load_policy", no_loading)
+    monkeypatch.setattr(populate_config, "load_policy", no_loading)
     config = PopulateConfig(
         driver="rules", policy=tmp_path / "absent.pt", duration=5.0, fcd=tmp_path / "f.xml"
     )
@@ -75,7 +77,7 @@ def test_a_driver_that_does_not_fit_is_one_line_on_stderr(tmp_path, args, messag
 
 
 def test_the_config_refuses_a_policy_beside_the_rules():
-    with pytest.raises(populate_module.BehaveError, match="drop --policy"):
+    with pytest.raises(BehaveError, match="drop --policy"):
         config_from(None, driver="rules", policy="traffic")
     assert config_from(None, driver="rules", policy=None).driver == "rules"
 

@@ -44,7 +44,7 @@ def test_cli_defaults_are_the_configs() -> None:
     from behaviors.cli import populate, report, train
     from behaviors.learn.train import TrainConfig
     from behaviors.report import realism
-    from behaviors.run.populate import DEFAULT_POLICY, PopulateConfig
+    from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig
 
     assert vars(train.DEFAULTS) == TrainConfig().options()  # every setting of a run, by option name
     defaults = vars(populate.DEFAULTS)

@@ -19,7 +19,8 @@ from behaviors.learn.env import make_env
 from behaviors.learn.traffic_env import CRAWL_CARS, CRAWL_GAP, CRAWL_SPEED, queue_places
 from behaviors.road.geometry import RoadGeometry, build_geometry, load_geometry
 from behaviors.road.neighbours import nearest_per_slot, neighbours
-from behaviors.run.populate import config_from, populate
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import config_from
 from behaviors.sumo.sim import SimOptions, SumoSim
 from behaviors.sumo.sumo_home import sumo_binary
 from behaviors.sumo.timing import PhaseTimer

@@ -17,7 +17,7 @@ from helpers import behave
 
 from behaviors.learn.distributed import TOKEN_LOGGER, TOKEN_NOTE, quiet_token_note
 from behaviors.report.realism import like_for_like_note
-from behaviors.run.populate import PopulateSummary
+from behaviors.run.records import PopulateSummary
 from sumo_scenarios import get_scenario, scenario_info
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -25,7 +25,8 @@ from behaviors.learn.ddpg.checkpoint import save_checkpoint
 from behaviors.learn.ddpg.networks import Actor
 from behaviors.report.export import export_fcd, fcd_is_geo, read_fcd
 from behaviors.report.plot import plot_fcd
-from behaviors.run.populate import PopulateConfig, populate
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import PopulateConfig
 from sumo_scenarios import get_scenario
 
 HIGHWAY = get_scenario("highway").net

@@ -16,20 +16,15 @@ from behaviors.errors import BehaveError
 from behaviors.fleet.drivers import STYLED_OBS_SIZE
 from behaviors.learn.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.learn.ddpg.networks import Actor
+from behaviors.learn.policy import PRETRAINED
 from behaviors.report.agents_table import INCIDENT_COLUMNS, agents_path, columns
 from behaviors.report.export import read_fcd, validate_fcd_xml
 from behaviors.road.routes import INSERT_LANE_RUN, lane_runs_out
-from behaviors.run.populate import (
-    BFLOAT16_MIN_BATCH,
-    DEFAULT_POLICY,
-    PRETRAINED,
-    PopulateConfig,
-    Population,
-    partial_path,
-    populate,
-    populate_policy,
-    use_bfloat16,
-)
+from behaviors.run.fcd_sealing import partial_path
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig, populate_policy
+from behaviors.run.population import Population
+from behaviors.run.precision import BFLOAT16_MIN_BATCH, use_bfloat16
 from behaviors.sumo.sumo_home import sumo_binary
 from behaviors.traffic.actuation import LaneDriving
 from behaviors.traffic.lanes import TRAFFIC_OBS_SIZE

@@ -12,13 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from behaviors.report.agents_table import columns
-from behaviors.run.populate import (
-    AgentLog,
-    AgentRow,
-    Incident,
-    PopulateSummary,
-    write_agents_csv,
-)
+from behaviors.run.records import AgentLog, AgentRow, Incident, PopulateSummary, write_agents_csv
 from behaviors.traffic.styles import unstyled
 
 

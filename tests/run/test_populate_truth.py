@@ -14,14 +14,11 @@ from behaviors.report.agents_table import columns as agent_columns
 from behaviors.report.export import read_fcd
 from behaviors.road.geometry import load_geometry
 from behaviors.road.routes import ROUTE_VARIANTS, route_graph
-from behaviors.run.populate import (
-    DEFAULT_POLICY,
-    PopulateConfig,
-    Population,
-    end_reasons,
-    partial_path,
-    populate,
-)
+from behaviors.run.fcd_sealing import partial_path
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig
+from behaviors.run.population import Population
+from behaviors.run.records import end_reasons
 from behaviors.sumo.sumo_home import sumo_binary
 
 

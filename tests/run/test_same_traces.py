@@ -20,7 +20,8 @@ import torch
 from behaviors.learn.ddpg.checkpoint import save_checkpoint
 from behaviors.learn.ddpg.networks import Actor
 from behaviors.paper.sensors import OBS_SIZE_WITH_ID
-from behaviors.run.populate import PopulateConfig, config_from, populate
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import PopulateConfig, config_from
 from behaviors.traffic.lanes import TRAFFIC_OBS_SIZE, TRAFFIC_SLICES
 from sumo_scenarios.osm_like import Demand, build_osm_like
 

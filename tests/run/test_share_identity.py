@@ -23,7 +23,8 @@ import pytest
 
 from behaviors.report.agents_table import agents_path
 from behaviors.report.export import fcd_options, read_fcd
-from behaviors.run.populate import config_from, populate
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import config_from
 from behaviors.sumo.sim import COLLISION_OPTIONS
 from behaviors.sumo.sumo_home import sumo_binary
 from sumo_scenarios.osm_like import Demand, build_osm_like

@@ -278,7 +278,8 @@ def test_batching_changes_nothing_sumo_sees(tmp_path, monkeypatch):
     """Batched subscriptions and messages give SUMO the same commands as traci's one call per message:
     SUMO's FCD is identical either way."""
     import behaviors.sumo.joined as joined
-    from behaviors.run.populate import config_from, populate_joined
+    from behaviors.run.populate import populate_joined
+    from behaviors.run.populate_config import config_from
 
     traces = []
     for batch in (True, False):
@@ -345,7 +346,7 @@ def test_sumo_time_options_read_in_seconds_and_clock_format():
     ],
 )
 def test_what_a_joined_run_cannot_do_is_refused_before_joining(given, message):
-    from behaviors.run.populate import config_from
+    from behaviors.run.populate_config import config_from
 
     values = {"connect": "localhost:1", "share": 0.5, **given}
     with pytest.raises(BehaveError, match=message):

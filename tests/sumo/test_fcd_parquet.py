@@ -21,7 +21,10 @@ import pytest
 
 from behaviors.errors import BehaveError
 from behaviors.report.export import read_fcd
-from behaviors.run.populate import PopulateConfig, Population, partial_path, populate
+from behaviors.run.fcd_sealing import partial_path
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import PopulateConfig
+from behaviors.run.population import Population
 from behaviors.sumo import fcd_parquet
 from behaviors.sumo.fcd_parquet import METADATA_KEY, ParquetStream, column_type
 

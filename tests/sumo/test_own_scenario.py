@@ -18,9 +18,11 @@ from behaviors.fleet.drivers import make_driver
 from behaviors.learn.ddpg.checkpoint import save_checkpoint
 from behaviors.learn.ddpg.networks import Actor
 from behaviors.learn.env import KEEPER_TYPE, OVERTAKER_TYPE
+from behaviors.learn.policy import PRETRAINED
 from behaviors.report.export import fcd_options, read_fcd
 from behaviors.road.geometry import cache_path, load_geometry
-from behaviors.run.populate import PRETRAINED, config_from, populate
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import config_from
 from behaviors.sumo.scenario_config import read_sumocfg, share_draw
 from behaviors.sumo.sim import COLLISION_OPTIONS, SimOptions, SumoSim
 from behaviors.sumo.sumo_home import sumo_binary

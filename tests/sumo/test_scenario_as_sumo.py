@@ -106,7 +106,8 @@ def test_share_0_is_sumo_c_with_the_same_options_and_the_summary_counts_its_vehi
 
 def test_without_agents_any_step_sumo_takes_holds(tmp_path):
     """A 2 s sumocfg was refused (populate's steps went to 1 s) though no policy drives in it."""
-    from behaviors.run.populate import config_from, populate
+    from behaviors.run.populate import populate
+    from behaviors.run.populate_config import config_from
 
     cfg = road_scenario(tmp_path / "scenario", time='<end value="40"/><step-length value="2"/>')
     fcd = tmp_path / "o.xml"
@@ -116,7 +117,8 @@ def test_without_agents_any_step_sumo_takes_holds(tmp_path):
 
 def test_the_summary_counts_the_scenarios_vehicles(tmp_path):
     """It said `vehicles 0` for a scenario's 1,000: only behave's own cars were counted."""
-    from behaviors.run.populate import config_from, populate
+    from behaviors.run.populate import populate
+    from behaviors.run.populate_config import config_from
 
     cfg = road_scenario(tmp_path / "scenario", time='<end value="20"/>')
     fcd = tmp_path / "o.xml"

@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from behaviors.run.populate import DEFAULT_POLICY, PopulateConfig, collision_incident, populate
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig
+from behaviors.run.records import collision_incident
 from behaviors.traffic.actuation import CarModel
 from behaviors.traffic.bodies import Bodies
 from behaviors.traffic.lanes import GAP_RANGE, search_radius, surroundings

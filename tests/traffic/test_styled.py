@@ -15,7 +15,8 @@ from behaviors.errors import BehaveError
 from behaviors.fleet.drivers import STYLED_LANES, STYLED_OBS_SIZE, StyledDriver
 from behaviors.learn.ddpg.checkpoint import save_checkpoint
 from behaviors.learn.ddpg.networks import Actor
-from behaviors.run.populate import PopulateConfig, populate
+from behaviors.run.populate import populate
+from behaviors.run.populate_config import PopulateConfig
 from behaviors.traffic.actuation import CarModel, LaneDriving, actuate_lanes
 from behaviors.traffic.rewards import TrafficStep, TrafficWeights, styled_rewards
 from behaviors.traffic.styles import (
