@@ -93,10 +93,11 @@ def child(mode: str, cfg: Path, cars: int, steps: int) -> dict[str, float]:
     from behaviors.run.populate_config import config_from
     from behaviors.run.population import Population
     from behaviors.run.precision import POLICY_THREADS
-    from behaviors.sumo.joined import Address, JoinedSim
+    from behaviors.sumo.joined import JoinedSim
     from behaviors.sumo.scenario_config import read_sumocfg, unrandom
     from behaviors.sumo.sim import COLLISION_OPTIONS
     from behaviors.sumo.sumo_home import sumo_binary
+    from behaviors.sumo.traci_connection import Address
 
     torch.set_num_threads(POLICY_THREADS)
     sumo = None

@@ -52,9 +52,10 @@ from behaviors.run.precision import POLICY_THREADS
 from behaviors.run.records import PopulateSummary, write_agents_csv
 from behaviors.sumo.fcd_parquet import ParquetStream
 from behaviors.sumo.interrupt import sigint_between_steps
-from behaviors.sumo.joined import SUMO_NET, JoinedSim, connection_closed, parse_address
+from behaviors.sumo.joined import SUMO_NET, JoinedSim
 from behaviors.sumo.scenario_config import LATERAL_RESOLUTION
 from behaviors.sumo.sim import SumoStopped, sumo_stopped
+from behaviors.sumo.traci_connection import connection_closed, parse_address
 
 
 def populate(

@@ -20,8 +20,8 @@ import pytest
 from helpers import BEHAVE, behave
 
 from behaviors.errors import BehaveError
-from behaviors.sumo.joined import Address, parse_address, sumo_seconds
 from behaviors.sumo.sumo_home import sumo_binary
+from behaviors.sumo.traci_connection import Address, parse_address, sumo_seconds
 
 AGENT_TYPES = {"behave_keeper", "behave_overtaker"}
 USER_SCRIPT = """
@@ -289,7 +289,7 @@ def test_batching_changes_nothing_sumo_sees(tmp_path, monkeypatch):
         port = free_port()
         sumo = start_sumo(cfg, port, clients=1)
         if not batch:
-            monkeypatch.setattr(joined, "_batches", lambda connection: False)
+            monkeypatch.setattr(joined, "batches", lambda connection: False)
         config = config_from(None, connect=f"localhost:{port}", share=0.5, agents_csv=folder / "agents.csv")
         summary = populate_joined(config)
         assert finish(sumo)[0] == 0
