@@ -39,7 +39,8 @@ from highway_anchor import cpu_model
 from behaviors.learn.policy import RULES, RULES_ACTION, Act, Policy, held_constant
 from behaviors.report.agents_table import agents_path
 from behaviors.report.export import read_fcd
-from behaviors.report.realism import KEEPERS, OVERTAKERS, measure, read_agents, read_lanes
+from behaviors.report.realism import measure, read_agents
+from behaviors.report.realism_tracks import KEEPERS, OVERTAKERS, read_lanes
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig, populate_policy
 from behaviors.traffic.lanes import TRAFFIC_SLICES

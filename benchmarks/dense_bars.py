@@ -25,7 +25,8 @@ from common import write_measured_doc
 
 from behaviors.report.agents_table import agents_path
 from behaviors.report.export import read_fcd
-from behaviors.report.realism import Lanes, group_names, measure, read_agents, read_lanes
+from behaviors.report.realism import measure, read_agents
+from behaviors.report.realism_tracks import Lanes, group_names, read_lanes
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig
 from sumo_scenarios import get_scenario

@@ -42,7 +42,9 @@ from common import write_measured_doc
 
 from behaviors.report.export import read_fcd
 from behaviors.report.flow import ALL, RoadEdges, edie_cells, region, road_from_net
-from behaviors.report.realism import THW_LIMIT, group_names, headways, prepare, read_lanes
+from behaviors.report.realism import THW_LIMIT
+from behaviors.report.realism_measures import headways
+from behaviors.report.realism_tracks import group_names, prepare, read_lanes
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig
 from sumo_scenarios import get_scenario
@@ -64,7 +66,7 @@ DISCHARGE_DENSITY = 27.0
 STARTUP_PER_LANE = 3
 """The first queued cars per lane to pass are left out of the discharge rate (start-up loss)."""
 AGENT_GROUPS = ("keepers", "overtakers")
-"""realism.group_names' names for the learned cars."""
+"""realism_tracks.group_names' names for the learned cars."""
 STAND_SPEED = 0.1
 STAND_S = 30.0
 PAST_BOTTLENECK = {"motorway4": "m4"}

@@ -33,7 +33,8 @@ from traffic_bars import DRIVING_BARS, bars_table
 
 from behaviors.report.agents_table import LONG_STANDSTILL_S, agents_path
 from behaviors.report.export import read_fcd
-from behaviors.report.realism import Report, measure, read_agents, read_lanes
+from behaviors.report.realism import Report, measure, read_agents
+from behaviors.report.realism_tracks import read_lanes
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import DEFAULT_POLICY, config_from
 from behaviors.sumo.sim import STANDSTILL_SPEED

@@ -37,7 +37,7 @@ from behaviors.learn.env import EnvConfig, create_env
 from behaviors.learn.metrics import mean_rows
 from behaviors.learn.policy import load_policy
 from behaviors.learn.train import TrainConfig, prepare_run
-from behaviors.report.realism import SKIP_S
+from behaviors.report.realism_tracks import SKIP_S
 from behaviors.run.evaluate import (
     EvaluationPlan,
     evaluate,

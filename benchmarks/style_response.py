@@ -32,7 +32,8 @@ from highway_anchor import cpu_model
 from behaviors.learn.policy import PRETRAINED
 from behaviors.report.agents_table import agents_path
 from behaviors.report.export import read_fcd
-from behaviors.report.realism import FOLLOW_MIN_SPEED, LEADER_RANGE, REQUIRED, prepare, read_lanes
+from behaviors.report.realism_measures import FOLLOW_MIN_SPEED, LEADER_RANGE
+from behaviors.report.realism_tracks import REQUIRED, prepare, read_lanes
 from behaviors.road.geometry import load_geometry
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import PopulateConfig
@@ -63,7 +64,7 @@ def per_agent(fcd: Path, net: Path, limit: float) -> pd.DataFrame:
     thw = pd.Series(gap[keep] / speed[own][keep], index=tr["vehicle"].to_numpy()[own][keep])
     settled = tr[tr["settled"]]
     km = (settled["speed"] * settled["dt"].fillna(0)).groupby(settled["vehicle"]).sum() / 1000
-    # a lane change: the lane rank changes between two records of one car on one edge (realism.py's
+    # a lane change: the lane rank changes between two records of one car on one edge (realism_measures.py's
     # definition; the highway's one edge asks for none)
     same = (tr["seg"].shift() == tr["seg"]) & (tr["road_edge"].shift() == tr["road_edge"])
     changed = same & (tr["road_rank"].shift() != tr["road_rank"]) & tr["settled"]

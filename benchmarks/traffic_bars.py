@@ -23,15 +23,9 @@ from common import write_measured_doc
 
 from behaviors.report.agents_table import agents_path
 from behaviors.report.export import read_fcd
-from behaviors.report.realism import (
-    KEEPERS,
-    OTHER_GROUP,
-    OVERTAKERS,
-    measure,
-    read_agents,
-    read_lanes,
-    write_report,
-)
+from behaviors.report.realism import measure, read_agents
+from behaviors.report.realism_output import write_report
+from behaviors.report.realism_tracks import KEEPERS, OTHER_GROUP, OVERTAKERS, read_lanes
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import PopulateConfig
 from sumo_scenarios import get_scenario

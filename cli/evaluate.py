@@ -76,7 +76,7 @@ def evaluate_command(
     """Average the paper's metrics over episodes for every policy and setting (-q: only the files
     and errors; -v: each setting's figures as it finishes)."""
     level = verbosity(quiet, verbose)
-    from behaviors.report.realism import SKIP_S
+    from behaviors.report.realism_tracks import SKIP_S
     from behaviors.run.evaluate import (
         PAPER_METRICS,
         EvaluationOptions,

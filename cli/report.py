@@ -50,8 +50,10 @@ def report_command(
 
     from behaviors.report.agents_table import agents_path
     from behaviors.report.export import read_fcd
-    from behaviors.report.realism import Lanes, check_options, measure, read_agents, read_lanes, rows
-    from behaviors.report.realism import write_report as write_realism
+    from behaviors.report.realism import check_options, measure, read_agents
+    from behaviors.report.realism_output import rows
+    from behaviors.report.realism_output import write_report as write_realism
+    from behaviors.report.realism_tracks import Lanes, read_lanes
 
     check_options(skip_s, group_by)
     check_cells(cell_m, window_s)
@@ -92,7 +94,7 @@ def fundamental_diagram(
 ) -> tuple[Any, list[str]]:
     """Edie's flow and density per cell and group (None if no cell), and the report's lines on it."""
     from behaviors.report.flow import edie_cells, road_from_fcd, road_from_net, summary, summary_markdown
-    from behaviors.report.realism import group_names
+    from behaviors.report.realism_tracks import group_names
 
     road = road_from_net(net) if net is not None else road_from_fcd(df)
     groups = group_names(df["id"], df.get("type"), group_by)

@@ -22,7 +22,8 @@ Below them all: `behaviors` itself (errors, files) and sumo_scenarios; above the
 
 NET_READER = "sumo_scenarios.net"
 SUMOLIB_NET_READERS_ALLOWED: set[str] = set()
-"""Modules allowed to read nets with sumolib: none (realism.read_lanes reads through sumo_scenarios.net)."""
+"""Modules allowed to read nets with sumolib: none (realism_tracks.read_lanes reads through
+sumo_scenarios.net)."""
 
 
 def modules() -> dict[str, Path]:

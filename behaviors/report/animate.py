@@ -251,7 +251,7 @@ def vehicle_colours(df: pd.DataFrame, classes: np.ndarray | None = None) -> tupl
     import pandas as pd
 
     from behaviors.report.plot import GROUP_STYLES, SUMO_CAR
-    from behaviors.report.realism import group_names
+    from behaviors.report.realism_tracks import group_names
 
     groups = group_names(df["id"], df["type"], "type").to_numpy(dtype=object)
     if classes is None:

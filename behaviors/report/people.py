@@ -29,7 +29,8 @@ How each simulated figure is compared (`compare`):
   against the bar's 0.15-0.45 m.
 
 Everything is pandas/numpy over an FCD table (`behaviors.report.export.read_fcd`), through the realism
-report's own pieces (`behaviors.report.realism.prepare`, `headways`, `lane_changes`, `lane_offsets`): the
+report's own pieces (`behaviors.report.realism_tracks.prepare`, `realism_measures.headways`,
+`lane_changes`, `lane_offsets`): the
 same gaps (leader's rear to own front, own speed > 5 m/s, leader within 250 m), lane changes and
 lane-centre offsets as `behave report`.
 """
@@ -45,15 +46,8 @@ import numpy as np
 import pandas as pd
 
 from behaviors.errors import BehaveError
-from behaviors.report.realism import (
-    REQUIRED,
-    Lanes,
-    headways,
-    lane_changes,
-    lane_offsets,
-    lateral_motion,
-    prepare,
-)
+from behaviors.report.realism_measures import headways, lane_changes, lane_offsets, lateral_motion
+from behaviors.report.realism_tracks import REQUIRED, Lanes, prepare
 
 WINDOW_M = 420.0
 """highD's stretch: about 420 m, some 12 s of a car at 33 m/s."""

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-GROUP_STYLES = {  # realism.py's vehicle group -> (legend label, colour)
+GROUP_STYLES = {  # realism_tracks.py's vehicle group -> (legend label, colour)
     "keepers": ("keeper (learned)", "tab:blue"),
     "overtakers": ("overtaker (learned)", "tab:orange"),
 }
@@ -82,7 +82,7 @@ def trace_styles(df: pd.DataFrame) -> dict[str, tuple[str, str]]:
     """(legend label, colour) of each vehicle, grouped as the realism report groups it: by the
     vType of its last record, SUMO's per-vehicle copies `TYPE@id` counting as TYPE. A scenario's
     car that `populate --share` made an agent starts with the scenario's type."""
-    from behaviors.report.realism import group_names  # pandas-heavy: only once a plot is drawn
+    from behaviors.report.realism_tracks import group_names  # pandas-heavy: only once a plot is drawn
 
     last_type = df.groupby("id", sort=False)["type"].last()
     groups = group_names(last_type.index.to_series(), last_type, "type")

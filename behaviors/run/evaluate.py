@@ -32,16 +32,9 @@ from behaviors.learn.policy import RULES, Act, Policy, load_policy, rules_policy
 from behaviors.learn.train import episode_seed
 from behaviors.report.agents_table import agents_path, cell, table_text
 from behaviors.report.export import fcd_options, read_fcd
-from behaviors.report.realism import (
-    SKIP_S,
-    NothingToMeasure,
-    Report,
-    measure,
-    read_agents,
-    read_lanes,
-    stack_runs,
-)
-from behaviors.report.realism import write_report as write_realism
+from behaviors.report.realism import NothingToMeasure, Report, measure, read_agents, stack_runs
+from behaviors.report.realism_output import write_report as write_realism
+from behaviors.report.realism_tracks import SKIP_S, read_lanes
 from sumo_scenarios import Scenario, get_scenario
 
 

@@ -47,8 +47,6 @@ from behaviors.traffic.styles import read_population
 BACKGROUND_TYPE = "behave_background"
 CAR_FOOTPRINT = 15.0
 """Metres of lane one car needs (length + gaps at speed) when checking what a net can hold."""
-
-
 CAR_SIZE_M = {"length": (2.5, 7.5), "width": (1.2, 2.3)}
 """The sizes (m, inclusive) of a vehicle --share may turn into an agent (behave's agents are 5 m x 1.8 m):
 a vehicle of vClass passenger outside them (a 12 m vType that sets no vClass) is left to SUMO."""

@@ -299,7 +299,8 @@ def fcd_figures(fcd: Path, net: Path) -> dict[str, float]:
     """The flow figures (`flow_figures`) and `behave report`'s realism figures and fundamental-diagram
     summary (`edie_figures`) of a populate FCD, measured as `behave report FCD --net NET` does."""
     from behaviors.report.export import read_fcd
-    from behaviors.report.realism import Lanes, read_agents, read_lanes
+    from behaviors.report.realism import read_agents
+    from behaviors.report.realism_tracks import Lanes, read_lanes
 
     df = read_fcd(fcd)
     lanes = read_lanes(net) if net.is_file() else Lanes()
@@ -315,7 +316,7 @@ def flow_figures(df: pd.DataFrame) -> dict[str, float]:
     import numpy as np
     import pandas as pd
 
-    from behaviors.report.realism import group_names
+    from behaviors.report.realism_tracks import group_names
 
     df = df.sort_values(["id", "time"], kind="stable")
     times = np.sort(df["time"].unique())
@@ -357,7 +358,7 @@ def edie_figures(df: pd.DataFrame, net: Path) -> dict[str, float]:
     of the whole road, the highest flow of a density bin and its density, per group and `all`) as
     columns `edie_<group>_<figure>`, with report's cells; nothing if the run holds no whole window."""
     from behaviors.report.flow import CELL_M, WINDOW_S, edie_cells, road_from_fcd, road_from_net, summary
-    from behaviors.report.realism import group_names
+    from behaviors.report.realism_tracks import group_names
 
     road = road_from_net(net) if net.is_file() else road_from_fcd(df)
     groups = group_names(df["id"], df.get("type"), "type")

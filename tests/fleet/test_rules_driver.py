@@ -13,7 +13,8 @@ import behaviors.run.populate_config as populate_config
 from behaviors.errors import BehaveError
 from behaviors.report.agents_table import agents_path
 from behaviors.report.export import read_fcd
-from behaviors.report.realism import KEEPERS, OVERTAKERS, measure, read_agents, read_lanes
+from behaviors.report.realism import measure, read_agents
+from behaviors.report.realism_tracks import KEEPERS, OVERTAKERS, read_lanes
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import PopulateConfig, config_from
 from sumo_scenarios import get_scenario

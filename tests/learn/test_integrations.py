@@ -43,14 +43,14 @@ def test_cli_defaults_are_the_configs() -> None:
     library's."""
     from behaviors.cli import populate, report, train
     from behaviors.learn.train import TrainConfig
-    from behaviors.report import realism
+    from behaviors.report import realism_tracks
     from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig
 
     assert vars(train.DEFAULTS) == TrainConfig().options()  # every setting of a run, by option name
     defaults = vars(populate.DEFAULTS)
     assert defaults == {name: getattr(PopulateConfig(), name) for name in defaults}
     assert populate.DEFAULT_POLICY == DEFAULT_POLICY
-    assert (report.GROUP_BY, report.SKIP_S) == (realism.GROUP_BY, realism.SKIP_S)
+    assert (report.GROUP_BY, report.SKIP_S) == (realism_tracks.GROUP_BY, realism_tracks.SKIP_S)
 
 
 def test_behave_train_takes_every_setting_of_a_run() -> None:

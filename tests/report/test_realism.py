@@ -13,18 +13,9 @@ from helpers import behave
 
 from behaviors.cli.main import main
 from behaviors.errors import BehaveError
-from behaviors.report.realism import (
-    Lanes,
-    group_names,
-    headways,
-    lane_changes,
-    lateral_motion,
-    losses,
-    measure,
-    passes,
-    prepare,
-    read_lanes,
-)
+from behaviors.report.realism import losses, measure
+from behaviors.report.realism_measures import headways, lane_changes, lateral_motion, passes
+from behaviors.report.realism_tracks import Lanes, group_names, prepare, read_lanes
 from behaviors.sumo.sumo_home import sumo_binary
 from sumo_scenarios import get_scenario
 

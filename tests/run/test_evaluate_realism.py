@@ -10,7 +10,8 @@ import pytest
 from typer.testing import CliRunner
 
 from behaviors.cli.main import app
-from behaviors.report.realism import Lanes, measure, stack_runs
+from behaviors.report.realism import measure, stack_runs
+from behaviors.report.realism_tracks import Lanes
 from behaviors.run.evaluate import REALISM_COLUMNS
 
 PRETRAINED = Path(__file__).resolve().parents[2] / "behaviors" / "pretrained"

@@ -12,7 +12,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
 from dense_bars import OVERTAKERS, rightmost_while_free, through_ranks
 
-from behaviors.report.realism import read_lanes
+from behaviors.report.realism_tracks import read_lanes
 from sumo_scenarios import get_scenario
 
 
