@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from behaviors.road.geometry import cache_path, load_geometry
+from behaviors.road.geometry_build import cache_path, load_geometry
 from behaviors.sumo.sim import SimOptions, SumoSim
 
 

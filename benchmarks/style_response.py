@@ -34,7 +34,7 @@ from behaviors.report.agents_table import agents_path
 from behaviors.report.export import read_fcd
 from behaviors.report.realism_measures import FOLLOW_MIN_SPEED, LEADER_RANGE
 from behaviors.report.realism_tracks import REQUIRED, prepare, read_lanes
-from behaviors.road.geometry import load_geometry
+from behaviors.road.geometry_build import load_geometry
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import PopulateConfig
 from sumo_scenarios import get_scenario

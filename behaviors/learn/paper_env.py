@@ -15,7 +15,7 @@ from behaviors.learn.env_core import (
     EnvConfig,
     StepBatch,
 )
-from behaviors.road.geometry import load_geometry
+from behaviors.road.geometry_build import load_geometry
 from behaviors.sumo.sim import SimOptions, SumoSim, VehicleState
 from behaviors.traffic.rewards import NO_PROGRESS_SECONDS, race_positions, step_rewards, weigh
 from sumo_scenarios import Scenario, get_scenario, route_edges

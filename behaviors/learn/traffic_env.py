@@ -31,7 +31,8 @@ from behaviors.learn.env_core import (
     EnvConfig,
     StepBatch,
 )
-from behaviors.road.geometry import RoadGeometry, load_geometry
+from behaviors.road.geometry import RoadGeometry
+from behaviors.road.geometry_build import load_geometry
 from behaviors.road.routes import RouteGraph, RoutePool, lane_km, misplaced, route_graph
 from behaviors.sumo.scenario_config import ScenarioConfig, read_sumocfg, run_as_sumocfg
 from behaviors.sumo.sim import SimOptions, SumoSim

@@ -207,7 +207,7 @@ def named_net(fcd: Path) -> Path | None:
 
 def road_shapes(net: Path) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
     """(lane surfaces as polygons, lane markings between lanes, road edges) of a net's car lanes."""
-    from behaviors.road.geometry import offset_polyline
+    from behaviors.road.geometry_build import offset_polyline
     from sumo_scenarios.net import read_net
 
     try:

@@ -120,8 +120,8 @@ def road_offsets(net: Path) -> dict[str, float]:
     """Normal edge -> metres from the road's start to the edge's start, along the car connections: an
     edge starts where the longest way onto it ends (loops are cut where first met, a ring's lap starts
     again at 0), and an edge nothing leads onto ends where it joins (an on-ramp sits just before its
-    merge, not at 0). {} for a net with no car edge (geometry.load_geometry refuses it)."""
-    from behaviors.road.geometry import load_geometry
+    merge, not at 0). {} for a net with no car edge (geometry_build.load_geometry refuses it)."""
+    from behaviors.road.geometry_build import load_geometry
 
     try:
         geometry = load_geometry(net, cache=True)

@@ -17,7 +17,8 @@ from behaviors.learn.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.learn.policy import Policy
 from behaviors.learn.traffic_env import VTYPES
 from behaviors.report.export import fcd_options
-from behaviors.road.geometry import CAR_CLASS, load_geometry
+from behaviors.road.geometry import CAR_CLASS
+from behaviors.road.geometry_build import load_geometry
 from behaviors.road.routes import RoutePool, misplaced, route_graph
 from behaviors.run.populate_config import PopulateConfig, populate_policy
 from behaviors.run.records import (

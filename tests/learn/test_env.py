@@ -277,7 +277,7 @@ def write_net(tmp: Path, lanes: int) -> Path:
 
 @pytest.mark.sumo
 def test_bad_network_files_raise_a_clear_error(tmp_path):
-    from behaviors.road.geometry import load_geometry
+    from behaviors.road.geometry_build import load_geometry
 
     with pytest.raises(BehaveError, match="network file not found"):
         load_geometry(tmp_path / "missing.net.xml")

@@ -17,7 +17,8 @@ from behaviors.fleet.handover import HANDOVER_DISTANCE, LaneEnds, LanePlace, str
 from behaviors.learn import traffic_env
 from behaviors.learn.env import make_env
 from behaviors.learn.traffic_env import CRAWL_CARS, CRAWL_GAP, CRAWL_SPEED, queue_places
-from behaviors.road.geometry import RoadGeometry, build_geometry, load_geometry
+from behaviors.road.geometry import RoadGeometry
+from behaviors.road.geometry_build import build_geometry, load_geometry
 from behaviors.road.neighbours import nearest_per_slot, neighbours
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import config_from

@@ -17,7 +17,8 @@ from behaviors.paper.sensors import (
     opponent_rays,
     track_rays,
 )
-from behaviors.road.geometry import RAY_RANGE, build_geometry, load_geometry
+from behaviors.road.geometry import RAY_RANGE
+from behaviors.road.geometry_build import build_geometry, load_geometry
 from behaviors.road.neighbours import neighbour_pairs
 from sumo_scenarios import get_scenario
 

@@ -16,7 +16,7 @@ from behaviors.report.agents_table import agents_path
 from behaviors.report.export import read_fcd
 from behaviors.report.realism import measure
 from behaviors.report.realism_tracks import read_lanes
-from behaviors.road.geometry import load_geometry
+from behaviors.road.geometry_build import load_geometry
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import config_from
 from sumo_scenarios.osm_like import build_osm_like

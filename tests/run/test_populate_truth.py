@@ -12,7 +12,7 @@ import pytest
 
 from behaviors.report.agents_table import columns as agent_columns
 from behaviors.report.export import read_fcd
-from behaviors.road.geometry import load_geometry
+from behaviors.road.geometry_build import load_geometry
 from behaviors.road.routes import ROUTE_VARIANTS, route_graph
 from behaviors.run.fcd_sealing import partial_path
 from behaviors.run.populate import populate

@@ -20,7 +20,7 @@ from behaviors.learn.ddpg.networks import Actor
 from behaviors.learn.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.learn.policy import PRETRAINED
 from behaviors.report.export import fcd_options, read_fcd
-from behaviors.road.geometry import cache_path, load_geometry
+from behaviors.road.geometry_build import cache_path, load_geometry
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import config_from
 from behaviors.sumo.scenario_config import read_sumocfg, share_draw
@@ -248,7 +248,7 @@ def test_the_cli_says_one_line_after_its_set_up_lines_without_traceback(tmp_path
 
 
 def test_geometry_is_cached_beside_a_big_net_and_rebuilt_when_the_net_changes(tmp_path, monkeypatch):
-    monkeypatch.setattr("behaviors.road.geometry.CACHE_MIN_BYTES", 0)
+    monkeypatch.setattr("behaviors.road.geometry_build.CACHE_MIN_BYTES", 0)
     net = tmp_path / "h.net.xml"
     net.write_bytes(get_scenario("highway").net.read_bytes())
     said: list[str] = []
