@@ -38,7 +38,7 @@ from highway_anchor import cpu_model
 
 from behaviors.learn.policy import RULES, RULES_ACTION, Act, Policy, held_constant
 from behaviors.report.agents_table import agents_path
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from behaviors.report.realism import measure, read_agents
 from behaviors.report.realism_tracks import KEEPERS, OVERTAKERS, read_lanes
 from behaviors.run.populate import populate

@@ -24,7 +24,7 @@ import pandas as pd
 from common import write_measured_doc
 
 from behaviors.report.agents_table import agents_path
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from behaviors.report.realism import measure, read_agents
 from behaviors.report.realism_tracks import Lanes, group_names, read_lanes
 from behaviors.run.populate import populate

@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 from common import write_measured_doc
 
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from behaviors.report.flow import ALL, RoadEdges, edie_cells, region, road_from_net
 from behaviors.report.realism import THW_LIMIT
 from behaviors.report.realism_measures import headways

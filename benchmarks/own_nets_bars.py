@@ -32,7 +32,7 @@ from common import write_measured_doc
 from traffic_bars import DRIVING_BARS, bars_table
 
 from behaviors.report.agents_table import LONG_STANDSTILL_S, agents_path
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from behaviors.report.realism import Report, measure, read_agents
 from behaviors.report.realism_tracks import read_lanes
 from behaviors.run.populate import populate

@@ -44,7 +44,7 @@ from common import write_measured_doc
 from highway_anchor import cpu_model
 
 from behaviors.learn.policy import PRETRAINED
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from behaviors.report.people import (
     CARS,
     KS_LIMIT,

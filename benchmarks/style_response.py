@@ -31,7 +31,7 @@ from highway_anchor import cpu_model
 
 from behaviors.learn.policy import PRETRAINED
 from behaviors.report.agents_table import agents_path
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from behaviors.report.realism_measures import FOLLOW_MIN_SPEED, LEADER_RANGE
 from behaviors.report.realism_tracks import REQUIRED, prepare, read_lanes
 from behaviors.road.geometry_build import load_geometry

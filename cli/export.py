@@ -10,7 +10,8 @@ import typer
 
 from behaviors.cli.checks import NET
 from behaviors.errors import BehaveError
-from behaviors.report.export import EXPORT_FORMATS, export_fcd, read_fcd
+from behaviors.report.export import EXPORT_FORMATS, export_fcd
+from behaviors.report.fcd_read import read_fcd
 
 
 def export_command(

@@ -264,7 +264,7 @@ def populate_command(
         for name, seconds in summary.phases.items():
             typer.echo(f"phase {name}: {seconds:,.2f} s of {summary.wall_s:,.2f} s wall", err=True)
     if plot is not None:
-        from behaviors.report.export import read_fcd
+        from behaviors.report.fcd_read import read_fcd
         from behaviors.report.plot import plot_fcd
 
         road = config.net if config.net.is_file() else None  # road positions along it

@@ -49,7 +49,7 @@ def report_command(
     ensure_writable_dir(out)  # an unwritable --out fails now, not after the whole report
 
     from behaviors.report.agents_table import agents_path
-    from behaviors.report.export import read_fcd
+    from behaviors.report.fcd_read import read_fcd
     from behaviors.report.realism import check_options, measure, read_agents
     from behaviors.report.realism_output import rows
     from behaviors.report.realism_output import write_report as write_realism

@@ -17,7 +17,7 @@ from test_own_scenario import netconvert
 
 from behaviors.cli.policy import MODEL_CARD, model_card_lines
 from behaviors.learn.env import KEEPER_TYPE, OVERTAKER_TYPE
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -300,7 +300,7 @@ def animate_fcd(
     on_status: Callable[[str], None] | None = None,
 ) -> int:
     """Draw the animation of `fcd` into `out` (.gif or .mp4); returns the number of frames."""
-    from behaviors.report.export import read_fcd
+    from behaviors.report.fcd_read import read_fcd
 
     options.validate()
     check_animation_output(out)

@@ -28,7 +28,7 @@ How each simulated figure is compared (`compare`):
 * lane keeping: the mean over vehicles of each vehicle's mean |posLat| while not changing lanes,
   against the bar's 0.15-0.45 m.
 
-Everything is pandas/numpy over an FCD table (`behaviors.report.export.read_fcd`), through the realism
+Everything is pandas/numpy over an FCD table (`behaviors.report.fcd_read.read_fcd`), through the realism
 report's own pieces (`behaviors.report.realism_tracks.prepare`, `realism_measures.headways`,
 `lane_changes`, `lane_offsets`): the
 same gaps (leader's rear to own front, own speed > 5 m/s, leader within 250 m), lane changes and

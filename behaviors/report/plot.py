@@ -1,4 +1,4 @@
-"""Figures of FCD traces (see behaviors.report.export.read_fcd), drawn without pyplot.
+"""Figures of FCD traces (see behaviors.report.fcd_read.read_fcd), drawn without pyplot.
 
 matplotlib.figure.Figure with an Agg canvas needs no backend selection, so importing or
 calling this never changes the global matplotlib state of the caller.

@@ -31,7 +31,7 @@ from behaviors.learn.metrics import agent_runs, mean_rows, passed_fraction, summ
 from behaviors.learn.policy import RULES, Act, Policy, load_policy, rules_policy
 from behaviors.learn.train import episode_seed
 from behaviors.report.agents_table import agents_path, cell, table_text
-from behaviors.report.export import fcd_options, read_fcd
+from behaviors.report.fcd_read import fcd_options, read_fcd
 from behaviors.report.realism import NothingToMeasure, Report, measure, read_agents, stack_runs
 from behaviors.report.realism_output import write_report as write_realism
 from behaviors.report.realism_tracks import SKIP_S, read_lanes

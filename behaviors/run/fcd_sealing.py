@@ -7,7 +7,7 @@ from pathlib import Path
 
 from behaviors.errors import BehaveError
 from behaviors.files import temp_path
-from behaviors.report.export import last_whole_step, seal_fcd
+from behaviors.report.fcd_whole import last_whole_step, seal_fcd
 from behaviors.run.populate_config import PopulateConfig
 from behaviors.sumo.fcd_parquet import ParquetStream
 

@@ -16,7 +16,7 @@ from behaviors.learn.ddpg.checkpoint import load_checkpoint
 from behaviors.learn.env_core import EnvConfig
 from behaviors.learn.policy import PRETRAINED, RULES, Policy, load_policy, rules_policy
 from behaviors.learn.policy import resolve as resolve_policy
-from behaviors.report.export import FCD_SUFFIXES
+from behaviors.report.fcd_read import FCD_SUFFIXES
 from behaviors.run.precision import PRECISIONS, use_bfloat16
 from behaviors.sumo.fcd_parquet import PRECISION as PARQUET_PRECISION
 from behaviors.sumo.joined import SUMO_NET

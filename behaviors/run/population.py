@@ -16,7 +16,7 @@ from behaviors.fleet.drivers import make_driver
 from behaviors.learn.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.learn.policy import Policy
 from behaviors.learn.traffic_env import VTYPES
-from behaviors.report.export import fcd_options
+from behaviors.report.fcd_read import fcd_options
 from behaviors.road.geometry import CAR_CLASS
 from behaviors.road.geometry_build import load_geometry
 from behaviors.road.routes import RoutePool, misplaced, route_graph
@@ -103,7 +103,7 @@ class Population:
 
     def start(self, fcd_tmp: Path | None, precise: bool = False) -> None:
         """Start SUMO writing FCD to `fcd_tmp` (None: no FCD, for benchmarks) and ask for the cars;
-        `precise`: at every decimal (export.fcd_options), for the csv a ParquetStream reads."""
+        `precise`: at every decimal (fcd_read.fcd_options), for the csv a ParquetStream reads."""
         if self.joined is not None:
             self._join(self.joined)
             return

@@ -298,7 +298,7 @@ def error_line(exc: BaseException) -> str:
 def fcd_figures(fcd: Path, net: Path) -> dict[str, float]:
     """The flow figures (`flow_figures`) and `behave report`'s realism figures and fundamental-diagram
     summary (`edie_figures`) of a populate FCD, measured as `behave report FCD --net NET` does."""
-    from behaviors.report.export import read_fcd
+    from behaviors.report.fcd_read import read_fcd
     from behaviors.report.realism import read_agents
     from behaviors.report.realism_tracks import Lanes, read_lanes
 

@@ -54,7 +54,7 @@ DOUBLE_COLUMNS = ("time", "x", "y")
 vehicle_x, ...; lon/lat are x/y in SUMO's geo output); its other numbers are float32."""
 TEXT_COLUMNS = ("id", "type", "lane", "edge")
 GEO_NAMES = {"vehicle_x": "vehicle_lon", "vehicle_y": "vehicle_lat"}
-"""SUMO's geo output keeps calling lon/lat x/y; behave's files name them (as export._geo_names)."""
+"""SUMO's geo output keeps calling lon/lat x/y; behave's files name them (as fcd_whole._geo_names)."""
 METADATA_KEY = b"behave"
 """The parquet file's key-value metadata behave writes: the run's settings, as XML FCD's header."""
 SUMO_CLOSED = b"closed\n"

@@ -12,7 +12,7 @@ import pytest
 import behaviors.run.populate_config as populate_config
 from behaviors.errors import BehaveError
 from behaviors.report.agents_table import agents_path
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from behaviors.report.realism import measure, read_agents
 from behaviors.report.realism_tracks import KEEPERS, OVERTAKERS, read_lanes
 from behaviors.run.populate import populate

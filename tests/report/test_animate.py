@@ -21,7 +21,7 @@ from behaviors.report.animate import (
     step_at,
     time_label,
 )
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from sumo_scenarios import get_scenario
 
 DURATION = 10.0

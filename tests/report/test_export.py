@@ -12,13 +12,8 @@ import pandas as pd
 import pytest
 
 from behaviors.errors import BehaveError
-from behaviors.report.export import (
-    EXPORT_FORMATS,
-    export_fcd,
-    fcd_options,
-    read_fcd,
-    validate_fcd_xml,
-)
+from behaviors.report.export import EXPORT_FORMATS, export_fcd
+from behaviors.report.fcd_read import fcd_options, read_fcd, validate_fcd_xml
 from behaviors.report.plot import (
     ALONG_LABELS,
     _along_column,

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 from test_realism import populated, report
 
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from behaviors.report.flow import ALL, RoadEdges, edie_cells, region, road_from_fcd, summary
 from sumo_scenarios import get_scenario
 

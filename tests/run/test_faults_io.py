@@ -23,7 +23,8 @@ from behaviors.errors import BehaveError
 from behaviors.files import atomic_write_text
 from behaviors.learn.ddpg.checkpoint import save_checkpoint
 from behaviors.learn.ddpg.networks import Actor
-from behaviors.report.export import export_fcd, fcd_is_geo, read_fcd
+from behaviors.report.export import export_fcd
+from behaviors.report.fcd_read import fcd_is_geo, read_fcd
 from behaviors.report.plot import plot_fcd
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import PopulateConfig

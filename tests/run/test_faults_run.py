@@ -15,7 +15,7 @@ import pytest
 from helpers import BEHAVE, behave
 
 from behaviors.report.agents_table import agents_path
-from behaviors.report.export import read_fcd, validate_fcd_xml
+from behaviors.report.fcd_read import read_fcd, validate_fcd_xml
 from behaviors.run.populate import PopulateStopped, populate
 from behaviors.run.populate_config import PopulateConfig
 from behaviors.run.sweep import FAILED, OK, Point, RunResult, disk_full_error, failed_row, gather, keep_result

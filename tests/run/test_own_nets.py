@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from behaviors.report.agents_table import agents_path
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from behaviors.report.realism import measure
 from behaviors.report.realism_tracks import read_lanes
 from behaviors.road.geometry_build import load_geometry

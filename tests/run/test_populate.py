@@ -18,7 +18,7 @@ from behaviors.learn.ddpg.checkpoint import load_checkpoint, save_checkpoint
 from behaviors.learn.ddpg.networks import Actor
 from behaviors.learn.policy import PRETRAINED
 from behaviors.report.agents_table import INCIDENT_COLUMNS, agents_path, columns
-from behaviors.report.export import read_fcd, validate_fcd_xml
+from behaviors.report.fcd_read import read_fcd, validate_fcd_xml
 from behaviors.road.routes import INSERT_LANE_RUN, lane_runs_out
 from behaviors.run.fcd_sealing import partial_path
 from behaviors.run.populate import populate

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from behaviors.report.agents_table import columns as agent_columns
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from behaviors.road.geometry_build import load_geometry
 from behaviors.road.routes import ROUTE_VARIANTS, route_graph
 from behaviors.run.fcd_sealing import partial_path

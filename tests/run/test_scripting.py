@@ -18,7 +18,7 @@ from helpers import BEHAVE, behave
 
 from behaviors.cli.progress import ProgressLines, line_due, verbosity
 from behaviors.errors import BehaveError
-from behaviors.report.export import read_fcd, validate_fcd_xml
+from behaviors.report.fcd_read import read_fcd, validate_fcd_xml
 from behaviors.sumo.interrupt import sigint_between_steps
 from behaviors.sumo.sim import SimOptions, display_missing
 

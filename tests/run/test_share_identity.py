@@ -22,7 +22,7 @@ import pandas as pd
 import pytest
 
 from behaviors.report.agents_table import agents_path
-from behaviors.report.export import fcd_options, read_fcd
+from behaviors.report.fcd_read import fcd_options, read_fcd
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import config_from
 from behaviors.sumo.sim import COLLISION_OPTIONS

@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from behaviors.report.export import fcd_options
+from behaviors.report.fcd_read import fcd_options
 from behaviors.run.sweep import (
     FAILED,
     OK,

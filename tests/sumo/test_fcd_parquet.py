@@ -20,7 +20,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from behaviors.errors import BehaveError
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from behaviors.run.fcd_sealing import partial_path
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import PopulateConfig

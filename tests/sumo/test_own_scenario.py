@@ -19,7 +19,7 @@ from behaviors.learn.ddpg.checkpoint import save_checkpoint
 from behaviors.learn.ddpg.networks import Actor
 from behaviors.learn.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.learn.policy import PRETRAINED
-from behaviors.report.export import fcd_options, read_fcd
+from behaviors.report.fcd_read import fcd_options, read_fcd
 from behaviors.road.geometry_build import cache_path, load_geometry
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import config_from

@@ -15,7 +15,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from behaviors.report.export import read_fcd
+from behaviors.report.fcd_read import read_fcd
 from behaviors.sumo.scenario_config import read_sumocfg
 from behaviors.sumo.sumo_home import sumo_binary
 from tests.sumo.test_own_scenario import netconvert

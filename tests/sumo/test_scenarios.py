@@ -12,7 +12,7 @@ import pytest
 import sumolib
 
 from behaviors.errors import BehaveError
-from behaviors.report.export import fcd_options, read_fcd
+from behaviors.report.fcd_read import fcd_options, read_fcd
 from behaviors.sumo.sumo_home import sumo_binary
 from sumo_scenarios import (
     SCENARIO_NAMES,
