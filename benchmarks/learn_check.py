@@ -21,7 +21,8 @@ from common import meets_lanekeeping_bar, numbered_checkpoints
 
 from behaviors.learn.metrics import mean_rows
 from behaviors.learn.policy import load_policy
-from behaviors.learn.train import TrainConfig, prepare_run
+from behaviors.learn.train import prepare_run
+from behaviors.learn.train_config import TrainConfig
 from behaviors.run.evaluate import evaluate
 
 

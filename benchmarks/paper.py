@@ -36,7 +36,8 @@ from behaviors.files import atomic_write_text, ensure_writable_dir
 from behaviors.learn.env import EnvConfig, create_env
 from behaviors.learn.metrics import mean_rows
 from behaviors.learn.policy import load_policy
-from behaviors.learn.train import TrainConfig, prepare_run
+from behaviors.learn.train import prepare_run
+from behaviors.learn.train_config import TrainConfig
 from behaviors.report.realism_tracks import SKIP_S
 from behaviors.run.evaluate import (
     EvaluationPlan,

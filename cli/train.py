@@ -164,7 +164,8 @@ def train(
     episode with -v, nothing with -q."""
     given = dict(locals())  # the options as typer parsed them, by name
     level = verbosity(quiet, verbose)
-    from behaviors.learn.train import TrainConfig, prepare_run  # torch: only when training
+    from behaviors.learn.train import prepare_run  # torch: only when training
+    from behaviors.learn.train_config import TrainConfig
 
     check_road(net, sumocfg, driver)
     config = TrainConfig.from_options(**{

@@ -9,7 +9,8 @@ import pytest
 import torch
 from helpers import behave
 
-from behaviors.learn.train import TrainConfig, prepare_run
+from behaviors.learn.train import prepare_run
+from behaviors.learn.train_config import TrainConfig
 
 pytest.importorskip("ray", reason="ray is not installed (the distributed extra)")
 

@@ -20,7 +20,8 @@ from pettingzoo.test import parallel_seed_test
 from behaviors import BehaveError, make_env
 from behaviors.fleet.control import AgentRows, RoadFrame
 from behaviors.learn.ddpg.checkpoint import load_actor
-from behaviors.learn.train import TrainConfig, prepare_run
+from behaviors.learn.train import prepare_run
+from behaviors.learn.train_config import TrainConfig
 from behaviors.paper.sensors import SLICES
 
 
@@ -72,7 +73,8 @@ COLUMNS = ["episode", "reward_sum", "steps", "updates", "collisions", "off_track
 CHILD = """
 import sys, time
 from pathlib import Path
-from behaviors.learn.train import TrainConfig, prepare_run
+from behaviors.learn.train import prepare_run
+from behaviors.learn.train_config import TrainConfig
 out, target, config = Path(sys.argv[1]), int(sys.argv[2]), eval(sys.argv[3])
 trainer = prepare_run(TrainConfig.from_options(**config), out, resume=False)
 step = trainer.env.step_arrays

@@ -42,7 +42,7 @@ def test_cli_defaults_are_the_configs() -> None:
     """The CLI spells its defaults out (so --help needs no torch or pandas): they must stay the
     library's."""
     from behaviors.cli import populate, report, train
-    from behaviors.learn.train import TrainConfig
+    from behaviors.learn.train_config import TrainConfig
     from behaviors.report import realism_tracks
     from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig
 
@@ -54,11 +54,11 @@ def test_cli_defaults_are_the_configs() -> None:
 
 
 def test_behave_train_takes_every_setting_of_a_run() -> None:
-    """Its options are TrainConfig's (train.OPTIONS), no more and no fewer: none can drift apart."""
+    """Its options are TrainConfig's (train_config.OPTIONS), no more and no fewer: none can drift apart."""
     import inspect
 
     from behaviors.cli import train
-    from behaviors.learn.train import OPTIONS
+    from behaviors.learn.train_config import OPTIONS
 
     command_only = {"out", "resume", "ray_address", "quiet", "verbose"}  # how it reports, not what it trains
     assert set(inspect.signature(train.train).parameters) - command_only == set(OPTIONS)

@@ -7,7 +7,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from behaviors.learn.train import TrainConfig, prepare_run
+from behaviors.learn.train import prepare_run
+from behaviors.learn.train_config import TrainConfig
 
 pytestmark = [pytest.mark.sumo, pytest.mark.train]
 

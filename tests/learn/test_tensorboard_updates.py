@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from behaviors.learn.ddpg.learner import DDPGLearner
-from behaviors.learn.train import UPDATE_LOG_EVERY, TrainConfig, prepare_run
+from behaviors.learn.train import UPDATE_LOG_EVERY, prepare_run
+from behaviors.learn.train_config import TrainConfig
 
 pytestmark = [pytest.mark.sumo, pytest.mark.train]
 

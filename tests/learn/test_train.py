@@ -13,7 +13,8 @@ import torch
 from behaviors.errors import BehaveError
 from behaviors.fleet.drivers import make_driver
 from behaviors.learn.ddpg.checkpoint import load_actor, load_checkpoint
-from behaviors.learn.train import TrainConfig, Trainer, prepare_run
+from behaviors.learn.train import Trainer, prepare_run
+from behaviors.learn.train_config import TrainConfig
 from behaviors.report.agents_table import END_REASONS, columns
 
 TINY = {"scenario": "tiny", "agents": 2, "max_steps": 40, "warmup": 32, "batch_size": 16,
@@ -52,7 +53,8 @@ def test_a_short_run_writes_config_metrics_checkpoints_and_curve(tmp_path):
 
 @pytest.mark.parametrize("driver", ["paper", "traffic"])
 def test_the_driver_gives_reward_scale_exploration_and_the_checkpoint_meta(tmp_path, driver):
-    """No driver's name is looked up in train.py: its settings and its checkpoint meta are the object's."""
+    """No driver's name is looked up in training (train.py, train_config.py): its settings and its
+    checkpoint meta are the object's."""
     model = make_driver(driver)
     among_traffic = {"scenario": "roads", "behaviour": "multi", "overtakers": 1, "keepers": 1}
     config = TrainConfig.from_options(
@@ -147,7 +149,8 @@ def test_sigterm_saves_a_checkpoint_and_the_state_to_resume(tmp_path):
     code = (
         "import os, signal, threading, time\n"
         "from pathlib import Path\n"
-        "from behaviors.learn.train import TrainConfig, prepare_run\n"
+        "from behaviors.learn.train import prepare_run\n"
+        "from behaviors.learn.train_config import TrainConfig\n"
         f"t = prepare_run(TrainConfig.from_options(scenario='tiny', agents=2, max_steps=40, warmup=32, "
         f"batch_size=16, hidden=(32, 32), episodes=10000), Path({str(out)!r}), resume=False)\n"
         "def stop_after_first_episode():\n"
