@@ -21,8 +21,8 @@ from behaviors.errors import BehaveError
 from behaviors.files import check_output_path
 from sumo_scenarios import get_scenario
 
-if TYPE_CHECKING:
-    from behaviors.run.populate_config import PopulateConfig  # torch: only when run, as PopulateSummary
+if TYPE_CHECKING:  # torch: only when run
+    from behaviors.run.populate_config import PopulateConfig
     from behaviors.run.records import PopulateSummary
 
 DEFAULTS = SimpleNamespace(

@@ -21,7 +21,7 @@ DEFAULTS = SimpleNamespace(
     algo="ps-ddpg", episodes=100, updates_per_step=None, reward_scale=None, checkpoint_every=10, init=None,
     max_minutes=None, workers=1, net=None, sumocfg=None, reward_weights=None,
 )  # fmt: skip
-"""Every setting of a run by option name (train.OPTIONS) with TrainConfig's default, spelled out so
+"""Every setting of a run by option name (train_config.OPTIONS) with TrainConfig's default, spelled out so
 that `--help` needs no torch; a test keeps them TrainConfig().options()."""
 UNIT = number(high=1.0)
 FRACTION = number(strict=True, high=1.0)
