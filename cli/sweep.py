@@ -127,6 +127,17 @@ def sweep_command(
         for path in result.outputs:
             typer.echo(f"wrote {path}")
     failed = int((table["status"] != "ok").sum())
-    if failed:
-        typer.echo(f"behave: {failed} of {len(table)} runs failed (their error is in the table)", err=True)
+    if failed or result.lost:
+        typer.echo(f"behave: {ending(len(points), failed, result.lost)}", err=True)
         raise typer.Exit(1)
+
+
+def ending(runs: int, failed: int, lost: tuple[str, ...]) -> str:
+    """The one line of a sweep that did not finish every run: the failed ones, the lost ones by id."""
+    parts = [f"{failed} of {runs} runs failed (their error is in the table)"] if failed else []
+    if lost:
+        parts.append(
+            f"{len(lost)} of {runs} runs lost with a Ray node that left the cluster ({', '.join(lost)}): "
+            "the same command again runs them"
+        )
+    return "; ".join(parts)

@@ -158,9 +158,18 @@ def start_ray(address: str | None, workers: int, *, log_to_driver: bool = True) 
     quiet_token_note()
     try:
         ray.init(address=address, **options)
-    except (ConnectionError, RuntimeError, ValueError) as exc:
-        raise BehaveError(f"cannot start or join Ray at {address or 'this machine'}: {exc}") from None
+    except (ConnectionError, RuntimeError, ValueError, ray.exceptions.RayError) as exc:
+        text = " ".join(str(exc).split())
+        hint = TOKEN_HINT if address is not None and "token" not in text.lower() else ""
+        raise BehaveError(f"cannot start or join Ray at {address or 'this machine'}: {text}{hint}") from None
     return ray
+
+
+TOKEN_HINT = (
+    " (a cluster started with RAY_AUTH_MODE=token takes only drivers with that setting and its token, "
+    "in RAY_AUTH_TOKEN or ~/.ray/auth_token: docs/manual/cli.md, `behave sweep`)"
+)
+"""What a refused connection to a cluster most likely lacks (Ray says only that it failed)."""
 
 
 TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"

@@ -36,14 +36,15 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from behaviors.errors import BehaveError
 from behaviors.files import atomic_path, atomic_write_text, disk_full, ensure_writable_dir
 from behaviors.report.agents_table import agents_path
-from behaviors.sumo.sim import STANDSTILL_SPEED
+from behaviors.run.ship import POLICY_DIR, SCENARIO_DIR, Package, pack_policy, pack_scenario, unpack
+from behaviors.run.sweep_figures import OK, fcd_figures, plot_table
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -54,26 +55,12 @@ OUTPUTS_DIR = "outputs"
 FCD_SUFFIX = ".csv"
 """Each run's FCD: SUMO writes csv as it goes (a parquet trace it keeps in memory until the end)."""
 TABLE = "sweep"
-OK, FAILED = "ok", "failed"
+FAILED = "failed"
 WALL_COLUMNS = ("wall_s", "real_time_factor", "host")
 """Columns that depend on the machine and the moment: left out when rows are compared."""
 SETTING_COLUMNS = ("id", "scenario", "scenario_path", "kind", "policy", "share", "seed", "overtakers",
                    "keepers", "background", "overtaker_fraction", "duration_s", "step_length_s",
                    "shield")  # fmt: skip
-FLOW_GROUPS = {
-    "sumo": ("sumo",),
-    "agents": ("keepers", "overtakers"),
-    "all": ("sumo", "keepers", "overtakers"),
-}
-"""The flow figures' groups of vehicles (realism's groups by vType: SUMO's own cars, the agents)."""
-PLOTTED = (
-    ("all_mean_speed", "mean speed, all cars [m/s]"),
-    ("sumo_mean_speed", "mean speed, SUMO's cars [m/s]"),
-    ("all_travel_time_mean_s", "travel time of cars that left [s]"),
-    ("all_throughput_per_h", "cars leaving per hour"),
-    ("sumo_stops_per_vehicle", "stops per SUMO car"),
-    ("collisions", "agent collisions"),
-)
 
 
 @dataclass(frozen=True)
@@ -253,18 +240,22 @@ class RunResult:
     outputs: tuple[tuple[str, bytes], ...] = ()  # the scenario's own outputs: (path in the run folder, bytes)
 
 
-def run_point(point: Point, *, keep_fcd: bool = False, workdir: Path | None = None) -> RunResult:
+def run_point(
+    point: Point, *, keep_fcd: bool = False, workdir: Path | None = None, here: Point | None = None
+) -> RunResult:
     """One populate run of `point` in a temporary folder and its row; any failure becomes a failed
-    row. The row is the same wherever and beside whatever it runs."""
+    row. The row is the same wherever and beside whatever it runs. `here`: the point with the paths
+    its files have on this machine (a shipped run's, `run_shipped`), which the row does not show."""
+    here = here or point
     with tempfile.TemporaryDirectory(prefix="behave-sweep-", dir=workdir) as folder:
         fcd, outputs = Path(folder) / f"fcd{FCD_SUFFIX}", Path(folder) / OUTPUTS_DIR
         start = time.perf_counter()
         try:
             from behaviors.run.populate import populate
 
-            config = point.config(fcd, outputs=outputs)
+            config = here.config(fcd, outputs=outputs)
             summary = populate(config)
-            row = ok_row(point, summary.as_dict(), fcd_figures(fcd, Path(summary_net(point))))
+            row = ok_row(point, summary.as_dict(), fcd_figures(fcd, Path(summary_net(here))))
             row["step_length_s"] = (
                 config.step_length
             )  # the step it ran at (given, the policy's, the sumocfg's)
@@ -280,6 +271,39 @@ def run_point(point: Point, *, keep_fcd: bool = False, workdir: Path | None = No
         return RunResult(row, fcd.read_bytes(), agents_path(fcd).read_bytes(), written)
 
 
+def run_shipped(
+    point: Point, scenario: Package, policy: Package | None, *, keep_fcd: bool = False
+) -> RunResult:
+    """`run_point` on a cluster's worker, of a point whose files came with it (`ship.pack_scenario`,
+    `ship.pack_policy`): unpacked into a temporary folder and run from there, its row as the sweep's
+    machine would give it."""
+    with tempfile.TemporaryDirectory(prefix="behave-shipped-") as folder:
+        try:
+            here = replace(
+                point, scenario=str(unpack(scenario, Path(folder) / SCENARIO_DIR)),
+                policy=point.policy if policy is None else str(unpack(policy, Path(folder) / POLICY_DIR)),
+            )  # fmt: skip
+        except OSError as exc:
+            return RunResult(
+                failed_row(point, f"cannot unpack the run's files on its worker: {error_line(exc)}")
+            )
+        return run_point(point, keep_fcd=keep_fcd, workdir=Path(folder), here=here)
+
+
+def packages(ray: Any, points: Sequence[Point], say: Callable[[str], None]) -> dict[str, tuple[Any, Any]]:
+    """Each point's scenario and policy packages in Ray's object store (each file read and sent once),
+    by the point's id; `say` gets what goes."""
+    scenarios = {key: pack_scenario(*key) for key in _unique((p.scenario, p.kind) for p in points)}
+    policies = {spec: pack_policy(spec) for spec in _unique(p.policy for p in points)}
+    files = [package for package in (*scenarios.values(), *policies.values()) if package is not None]
+    size = sum(package.size for package in files) / 2**20
+    say(f"sending each run its files: {sum(len(p.files) for p in files)} files, {size:.1f} MB, put once "
+        "in the cluster's object store")  # fmt: skip
+    scenario_refs = {key: ray.put(package) for key, package in scenarios.items()}
+    policy_refs = {spec: ray.put(package) for spec, package in policies.items()}
+    return {p.id: (scenario_refs[p.scenario, p.kind], policy_refs[p.policy]) for p in points}
+
+
 def summary_net(point: Point) -> str:
     """The net the point's cars drive on (a sumocfg's own)."""
     if point.kind == "net":
@@ -293,100 +317,6 @@ def error_line(exc: BaseException) -> str:
     """An error as one line: a BehaveError's message, anything else with its type."""
     text = " ".join(str(exc).split())
     return text if isinstance(exc, BehaveError) else f"{type(exc).__name__}: {text}"
-
-
-def fcd_figures(fcd: Path, net: Path) -> dict[str, float]:
-    """The flow figures (`flow_figures`) and `behave report`'s realism figures and fundamental-diagram
-    summary (`edie_figures`) of a populate FCD, measured as `behave report FCD --net NET` does."""
-    from behaviors.report.fcd_read import read_fcd
-    from behaviors.report.realism import read_agents
-    from behaviors.report.realism_tracks import Lanes, read_lanes
-
-    df = read_fcd(fcd)
-    lanes = read_lanes(net) if net.is_file() else Lanes()
-    figures = flow_figures(df) | realism_figures(df, lanes, read_agents(agents_path(fcd)))
-    return figures | edie_figures(df, net)
-
-
-def flow_figures(df: pd.DataFrame) -> dict[str, float]:
-    """Per group (SUMO's own cars, the agents, all; by each vehicle's last vType as `report` groups):
-    vehicles, vehicle-km, mean speed over all records, cars that left before the end, their mean
-    travel time (first to last record, plus one step), cars leaving per hour, and stops per vehicle
-    (times a moving car came below STANDSTILL_SPEED)."""
-    import numpy as np
-    import pandas as pd
-
-    from behaviors.report.realism_tracks import group_names
-
-    df = df.sort_values(["id", "time"], kind="stable")
-    times = np.sort(df["time"].unique())
-    step = float(np.diff(times).min()) if len(times) > 1 else 0.0
-    span = float(times[-1] - times[0]) + step if len(times) else 0.0
-    per_car = df.groupby("id", sort=True).agg(first=("time", "first"), last=("time", "last"),
-                                              type=("type", "last"))  # fmt: skip
-    per_car["group"] = group_names(per_car.index.to_series(), per_car["type"], "type").to_numpy()
-    halted = (df["speed"] < STANDSTILL_SPEED).to_numpy()
-    same = df["id"].to_numpy()[1:] == df["id"].to_numpy()[:-1]
-    stop = np.zeros(len(df), bool)
-    stop[1:] = halted[1:] & ~halted[:-1] & same
-    stops = pd.Series(stop).groupby(df["id"].to_numpy()).sum()
-    speed_sum = df.groupby("id")["speed"].sum()
-    records = df.groupby("id").size()
-    end = float(times[-1]) if len(times) else 0.0
-    out: dict[str, float] = {}
-    for name, groups in FLOW_GROUPS.items():
-        cars = per_car.index[per_car["group"].isin(groups)]
-        left = per_car.loc[cars][per_car.loc[cars, "last"] < end - step / 2]
-        n, n_left = len(cars), len(left)
-        driven = float(speed_sum.reindex(cars).sum())
-        out[f"{name}_vehicles"] = float(n)
-        out[f"{name}_vehicle_km"] = driven * step / 1000
-        out[f"{name}_mean_speed"] = driven / float(records.reindex(cars).sum()) if n else math.nan
-        out[f"{name}_left"] = float(n_left)
-        travel = (left["last"] - left["first"]).mean() + step
-        out[f"{name}_travel_time_mean_s"] = float(travel) if n_left else math.nan
-        out[f"{name}_throughput_per_h"] = n_left / span * 3600 if span > 0 else math.nan
-        out[f"{name}_stops_per_vehicle"] = float(stops.reindex(cars).sum() / n) if n else math.nan
-    out["agents_share_of_vehicles"] = (
-        out["agents_vehicles"] / out["all_vehicles"] if len(per_car) else math.nan
-    )
-    return out
-
-
-def edie_figures(df: pd.DataFrame, net: Path) -> dict[str, float]:
-    """`behave report`'s fundamental-diagram summary (behaviors.report.flow: Edie's density, flow and speed
-    of the whole road, the highest flow of a density bin and its density, per group and `all`) as
-    columns `edie_<group>_<figure>`, with report's cells; nothing if the run holds no whole window."""
-    from behaviors.report.flow import CELL_M, WINDOW_S, edie_cells, road_from_fcd, road_from_net, summary
-    from behaviors.report.realism_tracks import group_names
-
-    road = road_from_net(net) if net.is_file() else road_from_fcd(df)
-    groups = group_names(df["id"], df.get("type"), "type")
-    cells = edie_cells(df, road, groups, cell_m=CELL_M, window_s=WINDOW_S)
-    if cells.empty:
-        return {}
-    return {
-        f"edie_{group}_{figure}": float(value)
-        for group, row in summary(cells).iterrows()
-        for figure, value in row.items()
-    }
-
-
-def realism_figures(df: pd.DataFrame, lanes: Any, agents: pd.DataFrame | None) -> dict[str, float]:
-    """`behave report`'s table as columns `realism_<group>_<metric>` (nothing if no car drove long
-    enough to be measured)."""
-    from behaviors.report.realism import NothingToMeasure, measure
-
-    try:
-        report = measure(df, lanes, agents=agents)
-    except NothingToMeasure:
-        return {}
-    table = report.table
-    return {
-        f"realism_{group}_{metric}": float(table.loc[metric, group])
-        for group in table.columns
-        for metric in table.index
-    }
 
 
 # --- rows and the table ----------------------------------------------------------------------------
@@ -473,48 +403,6 @@ def write_table(out: Path, table: pd.DataFrame) -> list[Path]:
     return [csv, parquet]
 
 
-LINE_SETTINGS = ("background", "overtaker_fraction", "duration_s", "step_length_s", "shield")
-"""Settings that make a line of their own in the plot when the table holds more than one value (on a
-net the counts are the x axis)."""
-
-
-def plot_table(table: pd.DataFrame, path: Path) -> Path | None:
-    """The main figures against the share (on a net: agents / (agents + background cars)), per scenario
-    and policy: the mean over seeds as a line, the range as a band, each run as a dot."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    ok = table[table["status"] == OK].copy()
-    if ok.empty:
-        return None
-    agents = ok["overtakers"] + ok["keepers"]
-    ok["x"] = ok["share"].where(ok["kind"] == "sumocfg", agents / (agents + ok["background"]))
-    lines = ["scenario", "policy", *(c for c in LINE_SETTINGS if ok[c].nunique(dropna=False) > 1)]
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7), squeeze=False)
-    for ax, (column, title) in zip(axes.flat, PLOTTED, strict=True):
-        for key, runs in ok.groupby(lines, sort=True, dropna=False):
-            if column not in runs:
-                continue
-            spread = runs.groupby("x")[column].agg(["mean", "min", "max"]).sort_index()
-            label = ", ".join(short(k, v) for k, v in zip(lines, key, strict=True))
-            line = ax.plot(spread.index, spread["mean"], marker="o", label=label)
-            ax.fill_between(spread.index, spread["min"], spread["max"], alpha=0.2, color=line[0].get_color())
-            ax.scatter(runs["x"], runs[column], s=8, color=line[0].get_color(), alpha=0.6)
-        ax.set_title(title, fontsize=10)
-        ax.set_xlabel("share of learned drivers")
-        ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=8)
-    seeds = ok["seed"].nunique()
-    fig.suptitle(f"behave sweep: {len(ok)} runs, {seeds} seed{'s' * (seeds != 1)} per point (band: range)")
-    fig.tight_layout()
-    with atomic_path(Path(path)) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
-    return Path(path)
-
-
 def keep_signal_handlers(start: Callable[[], Any]) -> Any:
     """`start()` with this process's SIGTERM and SIGINT handlers kept: Ray's driver installs its own,
     which print a stack dump and end the process; behave's stop cleanly (exit 143 / 130) and the
@@ -528,11 +416,6 @@ def keep_signal_handlers(start: Callable[[], Any]) -> Any:
         for signum, handler in kept.items():
             if handler is not None:
                 signal.signal(signum, handler)
-
-
-def short(setting: str, value: Any) -> str:
-    """A plot label's part: a scenario's or policy's file name without suffixes, else `setting=value`."""
-    return Path(str(value)).name.split(".")[0] if setting in ("scenario", "policy") else f"{setting}={value}"
 
 
 NO_SPACE = os.strerror(errno.ENOSPC)
@@ -602,6 +485,7 @@ class SweepResult:
     skipped: int  # points already finished
     failed: int  # of those run now
     outputs: list[Path]
+    lost: tuple[str, ...] = ()  # ids of the runs lost with a Ray node that left the cluster: no row
 
 
 def run_sweep(
@@ -615,15 +499,17 @@ def run_sweep(
 ) -> SweepResult:
     """Run the points not finished yet, at most `workers` at a time (None: as many as Ray has CPUs),
     each as a Ray task (its own process, its own SUMO); write each row as it comes back, then the
-    table and the plot. A worker that dies loses its run only (a failed row, run again next time). A
-    full disk stops the sweep: the runs under way are cancelled, the finished ones' rows stay, and a
-    BehaveError says so (the same call again, once there is room, runs the rest)."""
+    table and the plot. On a cluster (`address`) each run's files go with it (`run_shipped`). A worker
+    that dies loses its run only (a failed row, run again next time); a node that leaves the cluster
+    loses the runs it had (no row: `lost`, run next time). A full disk stops the sweep: the runs under
+    way are cancelled, the finished ones' rows stay, and a BehaveError says so (the same call again,
+    once there is room, runs the rest)."""
     out = Path(out)
     ensure_writable_dir(out / RUNS_DIR)
     done = finished(out, points)
     todo = [point for point in points if point.id not in done]
     say = on_event or (lambda text: None)
-    failures = 0
+    failures, lost = 0, list[str]()
     full: str | None = None  # why the sweep stopped: the disk is full
     if not todo:
         say(f"{len(points)} runs: all {len(done)} finished before")
@@ -635,24 +521,29 @@ def run_sweep(
         try:
             if workers is None:  # as many at once as the machine or the cluster has CPUs
                 workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
+            shipped = packages(ray, todo, say) if address is not None else {}
             say(f"{len(points)} runs: {len(done)} finished before, {len(todo)} to run on {workers} workers")
-            task = ray.remote(num_cpus=1, max_retries=0)(run_point)
+            task = ray.remote(num_cpus=1, max_retries=0)(run_shipped if shipped else run_point)
             waiting, running = list(todo), dict[Any, Point]()
             while (waiting or running) and full is None:
                 while waiting and len(running) < workers:
                     point = waiting.pop(0)
-                    running[task.remote(point, keep_fcd=keep_fcd)] = point
+                    running[task.remote(point, *shipped.get(point.id, ()), keep_fcd=keep_fcd)] = point
                 ready, _ = ray.wait(list(running), num_returns=1)
                 point = running.pop(ready[0])
                 try:
                     result = ray.get(ready[0])
+                except ray.exceptions.NodeDiedError:  # its node left the cluster: nothing wrong with the run
+                    lost.append(point.id)
+                    say(f"{point.id}: lost with its Ray node, which left the cluster")
+                    continue
                 except Exception as exc:  # the worker died (a crash in SUMO, killed): the run failed
                     result = RunResult(failed_row(point, error_line(getattr(exc, "cause", None) or exc)))
                 full = keep_result(out, result)
                 ok = result.row["status"] == OK
                 failures += not ok
-                lost = "" if row_path(out, point.id).is_file() else " (not kept: the disk is full)"
-                say(f"{point.id}: {OK if ok else 'failed: ' + result.row['error']}{lost}")
+                note = "" if row_path(out, point.id).is_file() else " (not kept: the disk is full)"
+                say(f"{point.id}: {OK if ok else 'failed: ' + result.row['error']}{note}")
             for ref in running:  # stopped for a full disk: the runs under way would not fit either
                 with contextlib.suppress(Exception):
                     ray.cancel(ref, force=True)
@@ -667,4 +558,6 @@ def run_sweep(
     table = gather(out)
     outputs = write_table(out, table)
     picture = plot_table(table, out / f"{TABLE}.png")
-    return SweepResult(table, len(todo), len(done), failures, outputs + ([picture] if picture else []))
+    return SweepResult(
+        table, len(todo), len(done), failures, outputs + ([picture] if picture else []), tuple(lost)
+    )

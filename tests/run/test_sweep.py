@@ -31,9 +31,7 @@ from behaviors.run.sweep import (
     compared,
     expand,
     failed_row,
-    fcd_figures,
     finished,
-    flow_figures,
     gather,
     row_path,
     run_point,
@@ -41,6 +39,7 @@ from behaviors.run.sweep import (
     save_files,
     write_row,
 )
+from behaviors.run.sweep_figures import fcd_figures, flow_figures
 from behaviors.sumo.sim import COLLISION_OPTIONS
 from behaviors.sumo.sumo_home import sumo_binary
 from sumo_scenarios.osm_like import Demand, build_osm_like
