@@ -297,8 +297,9 @@ def packages(ray: Any, points: Sequence[Point], say: Callable[[str], None]) -> d
     policies = {spec: pack_policy(spec) for spec in _unique(p.policy for p in points)}
     files = [package for package in (*scenarios.values(), *policies.values()) if package is not None]
     size = sum(package.size for package in files) / 2**20
-    say(f"sending each run its files: {sum(len(p.files) for p in files)} files, {size:.1f} MB, put once "
-        "in the cluster's object store")  # fmt: skip
+    count = sum(len(package.files) for package in files)
+    say(f"sending each run its files: {count} file{'s' * (count != 1)}, {size:.1f} MB, put once in the "
+        "cluster's object store")  # fmt: skip
     scenario_refs = {key: ray.put(package) for key, package in scenarios.items()}
     policy_refs = {spec: ray.put(package) for spec, package in policies.items()}
     return {p.id: (scenario_refs[p.scenario, p.kind], policy_refs[p.policy]) for p in points}
