@@ -14,9 +14,12 @@ imports nothing of train.py, which imports it.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import socket
+import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -156,20 +159,45 @@ def start_ray(address: str | None, workers: int, *, log_to_driver: bool = True) 
     if address is None:
         options |= {"num_cpus": max(workers, os.cpu_count() or 1), "object_store_memory": OBJECT_STORE_BYTES}
     quiet_token_note()
+    said: list[str] = []
     try:
-        ray.init(address=address, **options)
+        with contextlib.nullcontext() if address is None else held_stderr(said):
+            ray.init(address=address, **options)
     except (ConnectionError, RuntimeError, ValueError, ray.exceptions.RayError) as exc:
         text = " ".join(str(exc).split())
-        hint = TOKEN_HINT if address is not None and "token" not in text.lower() else ""
-        raise BehaveError(f"cannot start or join Ray at {address or 'this machine'}: {text}{hint}") from None
+        if address is not None and "token" not in text.lower():
+            refused = any(REFUSED_TOKEN in line for line in said)
+            text += f" ({'the cluster refused the token: ' if refused else ''}{TOKEN_HINT})"
+        raise BehaveError(f"cannot start or join Ray at {address or 'this machine'}: {text}") from None
+    sys.stderr.write("".join(said))
     return ray
 
 
 TOKEN_HINT = (
-    " (a cluster started with RAY_AUTH_MODE=token takes only drivers with that setting and its token, "
-    "in RAY_AUTH_TOKEN or ~/.ray/auth_token: docs/manual/cli.md, `behave sweep`)"
+    "a cluster started with RAY_AUTH_MODE=token takes drivers with that setting and its token, in "
+    "RAY_AUTH_TOKEN or ~/.ray/auth_token: docs/manual/cli.md, `behave sweep`"
 )
 """What a refused connection to a cluster most likely lacks (Ray says only that it failed)."""
+REFUSED_TOKEN = "InvalidAuthToken"
+"""What Ray's core prints, once a second while it retries, when the cluster refuses the token."""
+
+
+@contextmanager
+def held_stderr(said: list[str]) -> Iterator[None]:
+    """This process's stderr (file descriptor 2, where Ray's core writes) kept back into `said`: joining
+    a cluster that refuses the token prints a warning a second for twenty seconds, then fails."""
+    sys.stderr.flush()
+    kept = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(kept, 2)
+            os.close(kept)
+            held.seek(0)
+            said.extend(held.read().decode(errors="replace").splitlines(keepends=True))
 
 
 TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"

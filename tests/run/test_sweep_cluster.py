@@ -159,8 +159,9 @@ def sweep_lines(args: list[str], env: dict[str, str], on_line, timeout: float = 
 
 @pytest.mark.sumo
 def test_a_sweep_on_two_nodes_reads_only_the_files_it_sends(cluster: Cluster, tmp_path: Path) -> None:
-    """Runs go to the worker node only (the head has no CPU); the scenario's folders are deleted once
-    the sweep has packed them, before any run starts: the rows come from the files sent alone."""
+    """A driver without the cluster's token is refused in one line. Runs go to the worker node only (the
+    head has no CPU); the scenario's folders are deleted once the sweep has packed them, before any run
+    starts: the rows come from the files sent alone."""
     sumocfg, folders = scenario(tmp_path)
     out = tmp_path / "sweep"
     deleted: list[int] = []  # rows written when the scenario went
@@ -173,6 +174,14 @@ def test_a_sweep_on_two_nodes_reads_only_the_files_it_sends(cluster: Cluster, tm
 
     args = [*SWEEP, "--sumocfg", str(sumocfg), "--seeds", "0,1", "--ray-address", cluster.address,
             "--out", str(out)]  # fmt: skip
+    start = time.monotonic()
+    refused = behave(*args, env=cluster.env | {"RAY_AUTH_TOKEN": "not-the-token"}, timeout=120)
+    print(f"a wrong token refused in {time.monotonic() - start:.0f} s")
+    (line,) = [line for line in refused.stderr.splitlines() if not line.startswith("sweep: note: ")]
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr, refused.stderr
+    assert line.startswith(f"behave: error: cannot start or join Ray at {cluster.address}: ")
+    assert "(the cluster refused the token: a cluster started with RAY_AUTH_MODE=token" in line
+    assert not list(out.rglob("*.json"))
     start = time.monotonic()
     code, stderr = sweep_lines(args, cluster.env, delete_once_sent)
     print(f"two-node sweep of 2 runs: {time.monotonic() - start:.0f} s")
