@@ -79,7 +79,11 @@ def sweep_command(
         typer.Option(help="runs at once, each a Ray task with its own SUMO [default: Ray's CPUs]"),
     ] = None,
     ray_address: Annotated[
-        str | None, typer.Option(help="a Ray cluster (HEAD_IP:6379) instead of a local Ray")
+        str | None,
+        typer.Option(
+            help="a Ray cluster (HEAD_IP:6379; token authentication: docs/manual/cli.md) instead of a "
+            "local Ray; each run takes its scenario and policy files along"
+        ),
     ] = None,
     out: Annotated[Path, typer.Option(help="the sweep folder (run again to resume)")] = Path("runs/sweep"),
     keep_fcd: Annotated[bool, typer.Option(help="keep each run's FCD and agents table in OUT/fcd/")] = False,

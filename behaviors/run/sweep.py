@@ -14,10 +14,11 @@ Layout of a sweep folder (`--out`):
   against the share with the spread over seeds.
 
 Everything but `run_sweep` is plain Python, testable without Ray: grid expansion (`expand`), one
-point's run (`run_point`: populate into a temporary folder, then the figures of its FCD), row
-building (`ok_row`, `failed_row`) and gathering (`gather`). A row depends on its point only (populate
-is seeded: same seed, same FCD), never on the worker or on the other runs; wall-clock figures are
-kept apart in WALL_COLUMNS.
+point's run (`run_point`: populate into a temporary folder, then the figures of its FCD, measured in
+sweep_figures.py), row building (`ok_row`, `failed_row`) and gathering (`gather`). A row depends on
+its point only (populate is seeded: same seed, same FCD), never on the worker or on the other runs;
+wall-clock figures are kept apart in WALL_COLUMNS. On a cluster each run takes its files along
+(ship.py, `run_shipped`) and a node that leaves costs only the runs it had.
 """
 
 from __future__ import annotations
