@@ -11,6 +11,7 @@ machine.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import queue
 import shutil
@@ -28,7 +29,7 @@ from pathlib import Path
 import pytest
 from helpers import BEHAVE, behave
 
-from behaviors.run.sweep import FAILED, OK, gather
+from behaviors.run.sweep import FAILED, OK, Grid, check_grid, compared, gather, read_row, row_path, run_point
 from sumo_scenarios.osm_like import Demand, build_osm_like
 
 pytest.importorskip("ray", reason="ray is not installed (the distributed extra)")
@@ -157,11 +158,16 @@ def sweep_lines(args: list[str], env: dict[str, str], on_line, timeout: float = 
             process.kill()
 
 
+def as_text(row: dict) -> str:
+    """A row without its wall-clock columns, as the sweep stores it (nan equal to nan)."""
+    return json.dumps(compared(json.loads(json.dumps(row))), sort_keys=True)
+
+
 @pytest.mark.sumo
 def test_a_sweep_on_two_nodes_reads_only_the_files_it_sends(cluster: Cluster, tmp_path: Path) -> None:
     """A driver without the cluster's token is refused in one line. Runs go to the worker node only (the
     head has no CPU); the scenario's folders are deleted once the sweep has packed them, before any run
-    starts: the rows come from the files sent alone."""
+    starts: the rows come from the files sent alone, and are the rows a run here gives."""
     sumocfg, folders = scenario(tmp_path)
     out = tmp_path / "sweep"
     deleted: list[int] = []  # rows written when the scenario went
@@ -174,6 +180,8 @@ def test_a_sweep_on_two_nodes_reads_only_the_files_it_sends(cluster: Cluster, tm
 
     args = [*SWEEP, "--sumocfg", str(sumocfg), "--seeds", "0,1", "--ray-address", cluster.address,
             "--out", str(out)]  # fmt: skip
+    grid = Grid(sumocfgs=(str(sumocfg.resolve()),), shares=(0.5,), seeds=(0, 1), duration=20.0)
+    alone = run_point(check_grid(grid)[1])  # seed 1, here, from the scenario's own folder
     start = time.monotonic()
     refused = behave(*args, env=cluster.env | {"RAY_AUTH_TOKEN": "not-the-token"}, timeout=120)
     print(f"a wrong token refused in {time.monotonic() - start:.0f} s")
@@ -191,6 +199,8 @@ def test_a_sweep_on_two_nodes_reads_only_the_files_it_sends(cluster: Cluster, tm
     table = gather(out)
     assert len(table) == 2 and list(table["status"]) == [OK, OK], table[["id", "status", "error"]]
     assert set(table["scenario_path"]) == {str(sumocfg.resolve())} and (table["of_them_agents"] > 0).all()
+    shipped = read_row(row_path(out, alone.row["id"]))
+    assert shipped is not None and as_text(shipped) == as_text(alone.row)  # the same row as here
     for point in table["id"]:  # the scenario's own outputs, at their places relative to its sumocfg
         assert {p.name for p in (out / "outputs" / point).rglob("*.xml")} == {"summary.xml", "loop.xml"}
         assert (out / "outputs" / point / "out" / "loop.xml").stat().st_size > 0
