@@ -525,7 +525,7 @@ def run_sweep(
                 workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
             shipped = packages(ray, todo, say) if address is not None else {}
             say(f"{len(points)} runs: {len(done)} finished before, {len(todo)} to run on {workers} workers")
-            task = ray.remote(num_cpus=1, max_retries=0)(run_shipped if shipped else run_point)
+            task = ray.remote(num_cpus=1, max_retries=0)(run_shipped if address is not None else run_point)
             waiting, running = list(todo), dict[Any, Point]()
             while (waiting or running) and full is None:
                 while waiting and len(running) < workers:
