@@ -297,9 +297,9 @@ def packages(ray: Any, points: Sequence[Point], say: Callable[[str], None]) -> d
     scenarios = {key: pack_scenario(*key) for key in _unique((p.scenario, p.kind) for p in points)}
     policies = {spec: pack_policy(spec) for spec in _unique(p.policy for p in points)}
     files = [package for package in (*scenarios.values(), *policies.values()) if package is not None]
-    size = sum(package.size for package in files) / 2**20
-    count = sum(len(package.files) for package in files)
-    say(f"sending each run its files: {count} file{'s' * (count != 1)}, {size:.1f} MB, put once in the "
+    size, count = sum(package.size for package in files), sum(len(package.files) for package in files)
+    amount = f"{size / 2**20:.1f} MB" if size >= 2**20 else f"{size / 2**10:.0f} kB"
+    say(f"sending each run its files: {count} file{'s' * (count != 1)}, {amount}, put once in the "
         "cluster's object store")  # fmt: skip
     scenario_refs = {key: ray.put(package) for key, package in scenarios.items()}
     policy_refs = {spec: ray.put(package) for spec, package in policies.items()}
