@@ -19,10 +19,9 @@ CHECKED = ("behaviors", "sumo_scenarios", "benchmarks", "tests")
 """Folders whose functions the parameter bar covers (cli/ is exempt: a command takes its options)."""
 
 # The traffic package is the exception pending its rebuild (its actuation module, and the tests'
-# helper that drives it); sweep.py is being reworked for Ray clusters and split with that.
+# helper that drives it).
 LONG_MODULES_ALLOWED = {
     "behaviors/traffic/actuation.py",
-    "behaviors/run/sweep.py",
 }
 """Modules allowed over MAX_LINES, by path from the repository root."""
 
