@@ -397,8 +397,10 @@ def document(
     lines = [
         "# Flow against density: SUMO alone and learned fleets (issue 23)",
         "",
-        f"Measured on commit {commit()} with `make flow` (`python benchmarks/flow.py --seed {args.seed} "
-        f"--jobs {args.jobs}`), policy `{args.policy.name}`, shield on, `--keep-count`, step 0.2 s; "
+        f"Measured on commit {commit()} with `python benchmarks/flow.py --seed {args.seed} --jobs {args.jobs}"
+        f"{'' if args.policy == DEFAULT_POLICY else f' --policy {args.policy} --doc {args.doc}'}` "
+        f"(`make flow` runs the default policy), policy `{args.policy.name}`, shield on, `--keep-count`, "
+        "step 0.2 s; "
         f"{os.cpu_count()} cores, {wall / 60:.1f} min wall time for all "
         f"{len(flow_rows) + len(queue_rows)} runs.",
         "",
