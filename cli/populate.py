@@ -79,6 +79,21 @@ def populate_command(
             callback=NON_NEGATIVE,
         ),
     ] = None,
+    lorries: Annotated[
+        int,
+        typer.Option(
+            help="learned lorries (16.5 m, 80-90 km/h, rightmost lane; a styled policy drives them)",
+            callback=NON_NEGATIVE,
+        ),
+    ] = 0,
+    share_lorries: Annotated[
+        bool,
+        typer.Option(
+            "--share-lorries",
+            help="with --sumocfg or --connect: --share also draws the scenario's lorries (vClass truck or "
+            "trailer), which become learned lorries of their own size (needs a styled policy)",
+        ),
+    ] = False,
     policy: Annotated[
         Path | None,
         typer.Option(
@@ -213,7 +228,8 @@ def populate_command(
     if connect is not None:
         joined_command(connect, order, agents_csv, fcd, level, json_out, plot, sumocfg, net=net,
                        share=share, overtaker_fraction=overtaker_fraction, overtakers=overtakers,
-                       keepers=keepers, policy=policy, population=population, driver=driver,
+                       keepers=keepers, lorries=lorries, share_lorries=share_lorries, policy=policy,
+                       population=population, driver=driver,
                        background=background, routes=routes, duration=duration, step_length=step_length,
                        lateral_resolution=lateral_resolution, outputs=outputs, seed=seed, geo=geo,
                        keep_count=keep_count, shield=shield, precision=precision, gui=gui,
@@ -230,7 +246,8 @@ def populate_command(
         )
     notes: list[str] = []
     config = config_from(
-        sumocfg, notes, net=net, overtakers=overtakers, keepers=keepers, policy=policy, background=background,
+        sumocfg, notes, net=net, overtakers=overtakers, keepers=keepers, lorries=lorries,
+        share_lorries=share_lorries, policy=policy, background=background,
         routes=routes, duration=duration, step_length=step_length, seed=seed, fcd=fcd, geo=geo,
         keep_count=keep_count, shield=shield, precision=precision, share=share,
         overtaker_fraction=overtaker_fraction, gui=gui, driver=driver, lateral_resolution=lateral_resolution,
@@ -383,7 +400,8 @@ def summary_table(summary: PopulateSummary, title: str) -> Table:
 def plot_title(config: PopulateConfig) -> str:
     """What the run was: the net and its agents, or the sumocfg and the share of its cars that drove."""
     if config.sumocfg is None:
-        return f"{config.net.name}: {config.keepers} keepers, {config.overtakers} overtakers"
+        lorries = f", {config.lorries} lorries" if config.lorries else ""
+        return f"{config.net.name}: {config.keepers} keepers, {config.overtakers} overtakers{lorries}"
     return (
         f"{config.sumocfg.name}: {config.share:g} of its passenger cars learned "
         f"({config.overtaker_fraction:g} of them overtakers), seed {config.seed}"

@@ -215,8 +215,14 @@ SUMO_LC_ACCEL_LAT = 1.0
 (`SumoSim.hand_to_sumo`)."""
 SUMO_MAX_SPEED_LAT = 1.0
 """m/s: SUMO's default maxSpeedLat, likewise."""
-AGENT_VTYPES = ("behave_keeper", "behave_overtaker")
-"""The vTypes of the learned cars (keepers and overtakers)."""
+AGENT_VTYPES = ("behave_keeper", "behave_overtaker", "behave_lorry")
+"""The vTypes of the learned vehicles (keepers, overtakers and lorries)."""
+LORRY_SIZE = (16.5, 2.55)
+"""m: a learned lorry's length and width (an EU articulated lorry's legal maximum)."""
+LORRY_ACCEL = 0.8
+"""m/s^2: the most a loaded lorry gains from rest (SUMO's speed mode caps the policy's commands)."""
+LORRY_TOP_SPEED = 25.0
+"""m/s: the speed limiter every EU lorry carries (90 km/h)."""
 AGENT_ACTION_STEP = 1.0
 """s: how often SUMO works out its own driver's plans for an agent (its vType's actionStepLength).
 The policy drives (speed and lane-change modes 0), so those plans go unused; the policy's speed
@@ -266,8 +272,19 @@ def write_vtypes(path: Path) -> None:
     }
     root = ET.Element("additional")
     # attributes as one dict: typeshed's SubElement would match a `**dict` to its `attrib` parameter too
-    for vtype, color in zip(AGENT_VTYPES, ("0,200,0", "230,120,0"), strict=True):
+    keeper, overtaker, lorry_type = AGENT_VTYPES
+    for vtype, color in ((keeper, "0,200,0"), (overtaker, "230,120,0")):
         ET.SubElement(root, "vType", {"id": vtype, "color": color, **agent})
+    lorry = {
+        **agent,
+        "vClass": "truck",
+        "guiShape": "truck/semitrailer",
+        "length": f"{LORRY_SIZE[0]:g}",
+        "width": f"{LORRY_SIZE[1]:g}",
+        "accel": f"{LORRY_ACCEL:g}",
+        "maxSpeed": f"{LORRY_TOP_SPEED:g}",
+    }
+    ET.SubElement(root, "vType", {"id": lorry_type, "color": "120,60,200", **lorry})
     passive = {"maxSpeed": "20", "speedFactor": "1", "speedDev": "0", "sigma": "0"}
     ET.SubElement(root, "vType", {"id": "behave_passive", "color": "0,0,255", **passive, **sumo_driven})
     background = {"sigma": "0.5", "speedFactor": "norm(1,0.1)"}

@@ -297,7 +297,10 @@ class Fleet:
                 raise RuntimeError("Fleet.sense with agents SUMO no longer has: keep() them out first")
             self.rows.vehicle_rows = rows
             readings, lane_rows, entered = self._read_lanes(sim, vehicles, rows)
-        reach = search_reach(float(self.rows.speed.max(initial=0.0)), self.dt, self.car, vehicles.longest)
+        own_longest = float(vehicles.length[rows].max(initial=0.0))
+        reach = search_reach(
+            float(self.rows.speed.max(initial=0.0)), self.dt, self.car, vehicles.longest, own_longest
+        )
         with self.timer.phase("sensors"):
             sensing = Sensing(vehicles, rows, readings, lane_rows, entered, reach)
             observed = self.driver.observe(self, sim, sensing, with_id)
@@ -386,7 +389,7 @@ class Fleet:
         assert f is not None
         road_axis = f.heading - r.angle  # lanes run along the road, not along a swerving car
         fronts = vehicles.position
-        bodies = Bodies(vehicles.length, vehicles.width, self.car.length, self.car.width)
+        bodies = Bodies(vehicles.length, vehicles.width, vehicles.length[rows], vehicles.width[rows])
         around = surroundings(fronts[rows], road_axis, fronts, rows, self.car, reach, near, bodies)
         agent_of = np.full(len(vehicles.ids), -1, np.int64)
         agent_of[rows] = np.arange(len(rows))

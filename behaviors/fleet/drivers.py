@@ -154,11 +154,17 @@ class PaperDriver:
         )  # fmt: skip
 
 
+def desired_speed(own: TrafficRows, speed_limit: np.ndarray) -> np.ndarray:
+    """[N] m/s each agent wants here: its share of the local limit, never beyond its top speed."""
+    return np.minimum(own.desired_fraction * speed_limit, own.top_speed)
+
+
 @dataclass
 class TrafficRows:
     """The traffic driver's own per-agent rows (taken and extended with the fleet's)."""
 
     desired_fraction: np.ndarray = field(default_factory=lambda: np.zeros(0))  # of the local speed limit
+    top_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # m/s never wanted beyond (a limiter)
     lateral_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
     lateral_accel: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
     changing: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # see actuation.lane_intent
@@ -233,8 +239,10 @@ class TrafficDriver:
     def new_rows(self, count: int, style: Styles | None) -> TrafficRows:
         zeros = np.zeros(count)
         desired = zeros if style is None else np.asarray(style.desired_fraction, float)
+        top = np.full(count, np.inf) if style is None else np.asarray(style.top_speed, float)
         return TrafficRows(
             desired_fraction=desired,
+            top_speed=top,
             lateral_speed=zeros,
             lateral_accel=zeros,
             changing=np.zeros(count, np.int64),
@@ -258,7 +266,7 @@ class TrafficDriver:
         need, and decides the hand-overs (sent to SUMO by the fleet after sensing)."""
         r, g, own = fleet.rows, fleet.geometry, fleet.rows.own
         vehicles, rows, readings = sensing.vehicles, sensing.rows, sensing.readings
-        bodies = Bodies(vehicles.length, vehicles.width, fleet.car.length, fleet.car.width)
+        bodies = Bodies(vehicles.length, vehicles.width, vehicles.length[rows], vehicles.width[rows])
         radius = search_radius(bodies.longest)
         radius = max(radius, sensing.reach) if fleet.shield else radius
         front = vehicles.position[rows]  # read only below: one gather serves the search, frame and lanes
@@ -283,7 +291,7 @@ class TrafficDriver:
             speed=r.speed,
             lateral_speed=own.lateral_speed,
             changing=own.changing,
-            desired_speed=own.desired_fraction * frame.speed_limit,
+            desired_speed=desired_speed(own, frame.speed_limit),
             speed_limit=frame.speed_limit,
             lane_offset=readings.lateral_pos,
             lane_width=g.lane_width[frame.lane_row],

@@ -12,6 +12,7 @@ from behaviors.fleet.drivers import make_driver
 from behaviors.learn.env_core import (
     BEHAVIOURS,
     KEEPER_TYPE,
+    LORRY_TYPE,
     OVERTAKER_TYPE,
     ROAD_FAMILIES,
     TRAINING_ROADS,
@@ -26,6 +27,7 @@ from sumo_scenarios import Scenario
 __all__ = [
     "BEHAVIOURS",
     "KEEPER_TYPE",
+    "LORRY_TYPE",
     "OVERTAKER_TYPE",
     "ROAD_FAMILIES",
     "TRAINING_ROADS",

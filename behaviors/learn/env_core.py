@@ -35,7 +35,7 @@ from sumo_scenarios.build import AGENT_VTYPES
 
 BEHAVIOURS = ("lanekeeping", "overtaking", "multi")
 PLACEMENTS = ("A", "B", "C")
-KEEPER_TYPE, OVERTAKER_TYPE = AGENT_VTYPES
+KEEPER_TYPE, OVERTAKER_TYPE, LORRY_TYPE = AGENT_VTYPES
 PASSIVE_TYPE = "behave_passive"
 BACKGROUND_TYPE = "behave_background"
 TRAINING_ROADS = "roads"

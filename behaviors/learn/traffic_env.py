@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from behaviors.errors import BehaveError
-from behaviors.fleet.drivers import TrafficDriver
+from behaviors.fleet.drivers import TrafficDriver, desired_speed
 from behaviors.learn.env_core import (
     BACKGROUND_TYPE,
     KEEPER_TYPE,
@@ -389,7 +389,7 @@ class TrafficEnv(BehaveEnv):
         slots = self._live_slots
         n = len(slots)
         assert fleet.rows.frame is not None
-        desired = fleet.own.desired_fraction * fleet.rows.frame.speed_limit
+        desired = desired_speed(fleet.own, fleet.rows.frame.speed_limit)
         style_headway, style_eagerness = fleet.own.time_headway.copy(), fleet.own.eagerness.copy()
         before_speed, before_lateral = fleet.rows.speed.copy(), fleet.own.lateral_speed.copy()
         self._stop_and_go(sim)

@@ -30,8 +30,8 @@ ASSUMED_LANE_WIDTH = 3.2  # SUMO's default; used for lanes the net does not name
 DEFAULT_LENGTH = 5.0  # metres; SUMO's passenger car, and every behave vType
 SKIP_S = 10.0  # each car's first seconds are left out: insertion is no behaviour
 GROUP_BY = ("type", "id-prefix")
-KEEPERS, OVERTAKERS = "keepers", "overtakers"
-GROUPS_OF_TYPE = {"behave_keeper": KEEPERS, "behave_overtaker": OVERTAKERS}
+KEEPERS, OVERTAKERS, LORRIES = "keepers", "overtakers", "lorries"
+GROUPS_OF_TYPE = {"behave_keeper": KEEPERS, "behave_overtaker": OVERTAKERS, "behave_lorry": LORRIES}
 OTHER_GROUP = "sumo"
 REQUIRED = ("id", "time", "lane", "pos", "speed")
 

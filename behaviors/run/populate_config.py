@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from behaviors.errors import BehaveError
-from behaviors.fleet.drivers import DRIVERS, make_driver
+from behaviors.fleet.drivers import DRIVERS, StyledDriver, make_driver
 from behaviors.learn.ddpg.checkpoint import load_checkpoint
 from behaviors.learn.env_core import EnvConfig
 from behaviors.learn.policy import PRETRAINED, RULES, Policy, load_policy, rules_policy
@@ -33,6 +33,7 @@ class PopulateConfig:
     net: Path = field(default_factory=lambda: get_scenario("highway").net)
     overtakers: int = 4
     keepers: int = 4
+    lorries: int = 0  # learned lorries (a styled policy drives them through their style)
     policy: Path = DEFAULT_POLICY
     background: int = 20
     routes: Path | None = None
@@ -47,6 +48,7 @@ class PopulateConfig:
     sumocfg: Path | None = None  # the user's scenario; `net` is then its net
     share: float = 0.0  # of the scenario's passenger cars, the fraction that become agents
     overtaker_fraction: float = 0.5  # of those agents, the fraction that are overtakers
+    share_lorries: bool = False  # the share draws the scenario's lorries too, as learned lorries
     gui: bool = False  # run in sumo-gui (needs a display)
     driver: str | None = None  # None: the policy's own; "rules": the traffic driver's rules, no policy
     lateral_resolution: float | None = None  # with a sumocfg: SUMO's sublane width (m); None: lateral_for
@@ -60,7 +62,7 @@ class PopulateConfig:
     @property
     def has_agents(self) -> bool:
         """Whether a policy drives in this run (agents of the share or of behave's own)."""
-        return self.share > 0 or self.keepers + self.overtakers > 0
+        return self.share > 0 or self.keepers + self.overtakers + self.lorries > 0
 
     @property
     def share_kinds(self) -> tuple[bool, bool]:
@@ -68,9 +70,9 @@ class PopulateConfig:
         return self.share * (1 - self.overtaker_fraction) > 0, self.share * self.overtaker_fraction > 0
 
     def validate(self) -> None:
-        if self.overtakers < 0 or self.keepers < 0 or self.background < 0:
+        if min(self.overtakers, self.keepers, self.lorries, self.background) < 0:
             raise BehaveError("agent and background counts must be >= 0")
-        empty = self.overtakers + self.keepers == 0 and self.background == 0
+        empty = self.overtakers + self.keepers + self.lorries == 0 and self.background == 0
         if empty and self.routes is None and self.sumocfg is None and self.connect is None:
             raise BehaveError("nothing to simulate: zero agents and no background traffic")
         if self.duration <= 0:
@@ -87,6 +89,10 @@ class PopulateConfig:
         for name in ("share", "overtaker_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise BehaveError(f"{name.replace('_', ' ')} must be in [0, 1], got {getattr(self, name)}")
+        if self.share_lorries and self.sumocfg is None and self.connect is None:
+            raise BehaveError(
+                "--share-lorries draws a scenario's lorries: it goes with --sumocfg or --connect"
+            )
         if self.leave_alone and self.connect is None:
             raise BehaveError("--leave-alone names another client's vehicles: it goes with --connect")
         if self.connect is not None:
@@ -116,7 +122,9 @@ class PopulateConfig:
             "--sumocfg": self.sumocfg is not None, "--routes": self.routes is not None, "--gui": self.gui,
             "--geo": self.geo, "--keep-count": self.keep_count, "--outputs": self.outputs is not None,
             "--lateral-resolution": self.lateral_resolution is not None,
-            "--keepers, --overtakers or --background": self.keepers + self.overtakers + self.background > 0,
+            "--keepers, --overtakers, --lorries or --background": (
+                self.keepers + self.overtakers + self.lorries + self.background > 0
+            ),
         }  # fmt: skip
         for option, given in not_here.items():
             if given:
@@ -148,7 +156,9 @@ def config_from(
         scenario = read_sumocfg(sumocfg)
         values["net"] = scenario.net
         values.update({k: 0 for k in ("overtakers", "keepers", "background") if k not in values})
-    counts = [values.get(kind, getattr(PopulateConfig, kind)) for kind in ("keepers", "overtakers")]
+    counts = [
+        values.get(kind, getattr(PopulateConfig, kind)) for kind in ("keepers", "overtakers", "lorries")
+    ]
     agents = values.get("share", 0.0) > 0 or sum(counts) > 0
     step = trained_step(values) if agents or agent_settings else TRAINED_STEP
     if agents and "step_length" in values:
@@ -269,6 +279,11 @@ def check_fits(config: PopulateConfig, policy: Policy) -> None:
         raise BehaveError(
             f"{policy.path} drives the {policy.driver} driver, which cannot leave multi-lane roads: "
             "--share needs a traffic-driver policy"
+        )
+    if (config.lorries or config.share_lorries) and policy.driver != StyledDriver.name:
+        raise BehaveError(
+            f"learned lorries drive through their style, which the {policy.driver} driver has none of "
+            "(use a styled policy: --policy styled)"
         )
     if policy.sees_behaviour:
         return

@@ -13,7 +13,6 @@ import numpy as np
 from behaviors.errors import BehaveError
 from behaviors.fleet.control import Fleet
 from behaviors.fleet.drivers import make_driver
-from behaviors.learn.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.learn.policy import Policy
 from behaviors.learn.traffic_env import VTYPES
 from behaviors.report.fcd_read import fcd_options
@@ -22,6 +21,7 @@ from behaviors.road.geometry_build import load_geometry
 from behaviors.road.routes import RoutePool, misplaced, route_graph
 from behaviors.run.populate_config import PopulateConfig, populate_policy
 from behaviors.run.records import (
+    AGENT_TYPE_OF,
     AgentLog,
     AgentRow,
     Incident,
@@ -43,7 +43,10 @@ from behaviors.sumo.scenario_config import (
 from behaviors.sumo.sim import SimOptions, SumoSim, VehicleState
 from behaviors.sumo.timing import PhaseTimer
 from behaviors.traffic.actuation import CarModel
-from behaviors.traffic.styles import read_population
+from behaviors.traffic.styles import KINDS, read_population
+
+LORRY_CLASSES = ("truck", "trailer")
+"""SUMO's vehicle classes of a scenario's lorries, which --share-lorries may draw."""
 
 BACKGROUND_TYPE = "behave_background"
 CAR_FOOTPRINT = 15.0
@@ -84,7 +87,7 @@ class Population:
         self.summary = PopulateSummary(sumo=SumoCars(config.step_length))
         self.log = AgentLog(config.step_length, self.policy.label)
         self.routes: RoutePool | None = None  # made with the simulation it hands routes to
-        self.counter = {"keeper": 0, "overtaker": 0, "background": 0}
+        self.counter = {**dict.fromkeys(KINDS, 0), "background": 0}
         self.pending: dict[str, str] = {}  # vehicle id -> kind, added but not yet on the road
         self.background_ids: set[str] = set()
         self.vehicles: VehicleState | None = None  # read after each step, used to sense in the next
@@ -125,6 +128,7 @@ class Population:
         self.routes = RoutePool(self.graph, c.duration * 50.0, self.sim.add_route)
         self.insert("overtaker", c.overtakers)
         self.insert("keeper", c.keepers)
+        self.insert("lorry", c.lorries)
         self.insert("background", c.background)
 
     def _join(self, sim: JoinedSim) -> None:
@@ -140,13 +144,14 @@ class Population:
         """Ask SUMO for `count` new vehicles of a kind on random multi-lane routes, at free places."""
         sim, routes = self.sim, self.routes
         assert sim is not None and routes is not None
-        vtype = {"keeper": KEEPER_TYPE, "overtaker": OVERTAKER_TYPE, "background": BACKGROUND_TYPE}[kind]
+        vtype = {**AGENT_TYPE_OF, "background": BACKGROUND_TYPE}[kind]
         for _ in range(count):
             vid = f"{kind}_{self.counter[kind]}"
             self.counter[kind] += 1
             # agents enter at the highest speed SUMO finds safe there: at traffic speed
+            speed = "desired" if kind == "background" else "max"
             sim.add_free_vehicle(
-                vid, routes.draw(self.rng), vtype, "desired" if kind == "background" else "max"
+                vid, routes.draw(self.rng), vtype, speed, "first" if kind == "lorry" else "random"
             )
             if kind != "background":
                 sim.take_control([vid])
@@ -158,7 +163,7 @@ class Population:
         assert sim is not None
         placed = [v for v in self.pending if v in present]
         assert self.vehicles is not None
-        keeper = np.array([self.pending[v] == "keeper" for v in placed], bool)
+        keeper = np.array([self.pending[v] in ("keeper", "lorry") for v in placed], bool)
         withdraw = misplaced(sim, self.vehicles, self.geometry, placed, keeper).tolist()
         joined = [v for v, out in zip(placed, withdraw, strict=True) if not out]
         withdrawn = [v for v, out in zip(placed, withdraw, strict=True) if out]
@@ -166,7 +171,7 @@ class Population:
         failed = [v for v in self.pending if v not in present] + withdrawn
         agents = [v for v in joined if self.pending[v] != "background"]
         if agents:
-            behaviour = np.array([1.0 if self.pending[v] == "overtaker" else 0.0 for v in agents])
+            behaviour = np.array([KINDS.index(self.pending[v]) for v in agents], float)
             style = self.fleet.driver.draw_style(behaviour, self.rng)
             self.fleet.add(agents, sim.read_speeds(agents), behaviour, style)
             self.log.join(agents, [self.pending[v] for v in agents], time, style)
@@ -232,31 +237,40 @@ class Population:
             self._convert(departed, now)
         self._admit(self.vehicles.row, now)
         if c.keep_count:
-            for kind in ("keeper", "overtaker"):
-                self.insert(kind, sum(v.startswith(kind) for v in left))
+            for kind in KINDS:
+                self.insert(kind, sum(v.startswith(f"{kind}_") for v in left))
             self.insert("background", len(left_background))
         self.summary.simulated_s += c.step_length
         self.now = now
 
     def _convert(self, departed: list[str], time: float) -> None:
-        """The share of the scenario's passenger cars that departed this step become agents: behave's
-        vehicle type, SUMO's checks off, into the fleet. The rest stay SUMO's, untouched."""
+        """The share of the scenario's passenger cars (and with --share-lorries of its lorries) that
+        departed this step become agents: behave's vehicle type (a lorry keeps its own size), SUMO's
+        checks off, into the fleet. The rest stay SUMO's, untouched."""
         sim, c = self.sim, self.config
         assert sim is not None
-        cars = [v for v in departed if sim.vehicle_class(v) == CAR_CLASS and not v.startswith(c.leave_alone)]
+        mine = [v for v in departed if not v.startswith(c.leave_alone)]
+        classes = {v: sim.vehicle_class(v) for v in mine}
+        cars = [v for v in mine if classes[v] == CAR_CLASS]
         draws = {v: share_draw(c.seed, v) for v in cars}
         drawn = [v for v in cars if draws[v] < c.share]
         agents = [v for v in drawn if car_sized(*sim.vehicle_size(v))]  # a bus typed passenger stays SUMO's
         self.summary.scenario_cars += len(cars)
         self.summary.scenario_not_car_sized += len(drawn) - len(agents)
+        kinds = ["overtaker" if draws[v] < c.share * c.overtaker_fraction else "keeper" for v in agents]
+        if c.share_lorries:
+            lorries = [v for v in mine if classes[v] in LORRY_CLASSES and share_draw(c.seed, v) < c.share]
+            agents, kinds = agents + lorries, kinds + ["lorry"] * len(lorries)
         self.summary.scenario_agents += len(agents)
         if not agents:
             return
-        kinds = ["overtaker" if draws[v] < c.share * c.overtaker_fraction else "keeper" for v in agents]
         for vid, kind in zip(agents, kinds, strict=True):
-            sim.set_agent_type(vid, OVERTAKER_TYPE if kind == "overtaker" else KEEPER_TYPE)
+            size = sim.vehicle_size(vid)
+            sim.set_agent_type(vid, AGENT_TYPE_OF[kind])
+            if kind == "lorry":
+                sim.set_vehicle_size(vid, *size)
         sim.take_control(agents)
-        behaviour = np.array([1.0 if kind == "overtaker" else 0.0 for kind in kinds])
+        behaviour = np.array([KINDS.index(kind) for kind in kinds], float)
         style = self.fleet.driver.draw_style(behaviour, self.rng)
         self.fleet.add(agents, sim.read_speeds(agents), behaviour, style)
         self.log.join(agents, kinds, time, style)
@@ -265,8 +279,9 @@ class Population:
         """Log SUMO's `speed` of each agent it still has, not the one commanded: SUMO may hold a
         car back (a lane that does not lead on stops it dead) whatever the policy asks."""
         self.log.observe(present, speed)
-        overtaker = self.fleet.behaviour_id[present] == 1.0
-        for name, mask in (("overtaker", overtaker), ("keeper", ~overtaker)):
+        behaviour = self.fleet.behaviour_id[present]
+        for flag, name in enumerate(KINDS):
+            mask = behaviour == flag
             self.summary.speed_sum[name] += float(speed[mask].sum())
             self.summary.speed_steps[name] += int(mask.sum())
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from behaviors.files import atomic_path
 from behaviors.fleet.control import RoadFrame
-from behaviors.learn.env import KEEPER_TYPE, OVERTAKER_TYPE
+from behaviors.learn.env import KEEPER_TYPE, LORRY_TYPE, OVERTAKER_TYPE
 from behaviors.report.agents_table import (
     END_REASONS,
     LONG_STANDSTILL_S,
@@ -27,7 +27,10 @@ from behaviors.report.agents_table import (
 from behaviors.road.geometry import RoadGeometry
 from behaviors.sumo.sim import STANDSTILL_SPEED
 from behaviors.traffic.actuation import CarModel
-from behaviors.traffic.styles import Styles
+from behaviors.traffic.styles import KINDS, Styles
+
+AGENT_TYPE_OF = dict(zip(KINDS, (KEEPER_TYPE, OVERTAKER_TYPE, LORRY_TYPE), strict=True))
+"""The vType of each kind of learned vehicle."""
 
 
 @dataclass
@@ -45,8 +48,8 @@ class PopulateSummary:
     scenario_not_car_sized: int = 0  # ... drawn by --share but left to SUMO: not a car's size (CAR_SIZE_M)
     simulated_s: float = 0.0
     wall_s: float = 0.0
-    speed_sum: dict[str, float] = field(default_factory=lambda: {"keeper": 0.0, "overtaker": 0.0})
-    speed_steps: dict[str, int] = field(default_factory=lambda: {"keeper": 0, "overtaker": 0})
+    speed_sum: dict[str, float] = field(default_factory=lambda: dict.fromkeys(KINDS, 0.0))
+    speed_steps: dict[str, int] = field(default_factory=lambda: dict.fromkeys(KINDS, 0))
     ended: dict[str, int] = field(default_factory=lambda: dict.fromkeys(END_REASONS, 0))
     long_standstills: int = 0  # agents that stood still for LONG_STANDSTILL_S or more at a time
     longest_standstill_s: float = 0.0
@@ -84,7 +87,7 @@ class PopulateSummary:
             "wall_s": self.wall_s,
             "real_time_factor": self.real_time_factor,
         }
-        for name in ("keeper", "overtaker"):
+        for name in KINDS:
             if self.speed_steps[name]:
                 out[f"{name}_mean_speed"] = self.speed_sum[name] / self.speed_steps[name]
         out.update({f"agents_{reason}": n for reason, n in self.ended.items()})
@@ -274,7 +277,7 @@ class AgentLog:
         return [self._row(k, "still_driving", time) for k in range(len(self.ids))]
 
     def _row(self, k: int, reason: str, time: float, incident: Incident = NO_INCIDENT) -> AgentRow:
-        vtype = OVERTAKER_TYPE if self.behaviour[k] == "overtaker" else KEEPER_TYPE
+        vtype = AGENT_TYPE_OF[self.behaviour[k]]
         depart, distance, longest = float(self.depart[k]), float(self.distance[k]), float(self.longest[k])
         return AgentRow(
             self.ids[k], self.behaviour[k], vtype, self.policy, round(depart, 3), round(time, 3), reason,

@@ -58,7 +58,15 @@ from behaviors.sumo.traci_connection import (
     sumo_seconds,
 )
 from behaviors.sumo.traci_wire import StepReader, Wire, batches
-from sumo_scenarios.build import AGENT_LC_ACCEL_LAT, AGENT_VTYPES, PASSENGER_DECEL, PASSENGER_MIN_GAP
+from sumo_scenarios.build import (
+    AGENT_LC_ACCEL_LAT,
+    AGENT_VTYPES,
+    LORRY_ACCEL,
+    LORRY_SIZE,
+    LORRY_TOP_SPEED,
+    PASSENGER_DECEL,
+    PASSENGER_MIN_GAP,
+)
 
 DEFAULT_ORDER = 2
 """This client's place in each step (`traci.setOrder`): after a program that owns the simulation and
@@ -78,7 +86,16 @@ AGENT_TYPE_SETTINGS: tuple[tuple[str, Any], ...] = (
 lcModel (TraCI cannot; the copy keeps the base type's, Krauss and, with sublanes, SL2015 unless the
 other simulation changed its defaults), its lcAccelLat (set on each car as it becomes an agent) and
 its actionStepLength of 1 s (`JoinedSim.agent_action_step`)."""
-AGENT_COLORS = {"behave_keeper": (0, 200, 0, 255), "behave_overtaker": (230, 120, 0, 255)}
+LORRY_TYPE_SETTINGS: tuple[tuple[str, Any], ...] = (
+    ("setVehicleClass", "truck"), ("setLength", LORRY_SIZE[0]), ("setWidth", LORRY_SIZE[1]),
+    ("setAccel", LORRY_ACCEL), ("setMaxSpeed", LORRY_TOP_SPEED),
+)  # fmt: skip
+"""What the learned lorry's vType sets on top of AGENT_TYPE_SETTINGS."""
+AGENT_COLORS = {
+    "behave_keeper": (0, 200, 0, 255),
+    "behave_overtaker": (230, 120, 0, 255),
+    "behave_lorry": (120, 60, 200, 255),
+}
 LC_ACCEL_LAT = "laneChangeModel.lcAccelLat"
 
 
@@ -169,7 +186,8 @@ class JoinedSim(SumoSim):
         for vtype in AGENT_VTYPES:
             if vtype not in have:
                 types.copy(BASE_VTYPE, vtype)
-                for setter, value in AGENT_TYPE_SETTINGS:
+                lorry = LORRY_TYPE_SETTINGS if vtype == AGENT_VTYPES[2] else ()
+                for setter, value in (*AGENT_TYPE_SETTINGS, *lorry):
                     getattr(types, setter)(vtype, value)
                 types.setColor(vtype, AGENT_COLORS[vtype])
             else:  # loaded from behave's vtypes file: keep its action step
@@ -495,6 +513,19 @@ class JoinedSim(SumoSim):
         else:
             self._sizes.pop(vid, None)
         self._last = replace(self._last, ids=())  # the next read builds its sizes anew
+
+    def set_vehicle_size(self, vid: str, length: float, width: float) -> None:
+        """As SumoSim's (queued)."""
+        if not self._batch:
+            super().set_vehicle_size(vid, length, width)
+            return
+        tc, w = self._tc, self._wire
+        sets = tc.CMD_SET_VEHICLE_VARIABLE
+        w.queue(
+            [w.command(sets, tc.VAR_LENGTH, vid, "d", length), w.command(sets, tc.VAR_WIDTH, vid, "d", width)]
+        )
+        self._sizes[vid] = (length, width)
+        self._last = replace(self._last, ids=())
 
     def vehicle_class(self, vid: str) -> str:
         facts = self._facts.get(vid)

@@ -367,11 +367,14 @@ class SumoSim:
             departSpeed=repr(speed),
         )
 
-    def add_free_vehicle(self, vid: str, route: str, vtype: str, speed: str = "desired") -> None:
+    def add_free_vehicle(
+        self, vid: str, route: str, vtype: str, speed: str = "desired", lane: str = "random"
+    ) -> None:
         """Insert a vehicle at a random free place of its route's first edge; `speed` is SUMO's
-        departSpeed ("desired", or "max": the highest speed that is safe where it is put)."""
+        departSpeed ("desired", or "max": the highest speed that is safe where it is put), `lane` its
+        departLane ("random", or "first": the slowest lane the vehicle's class may use)."""
         self._sumo.vehicle.add(
-            vid, route, typeID=vtype, depart="now", departLane="random", departPos="random_free",
+            vid, route, typeID=vtype, depart="now", departLane=lane, departPos="random_free",
             departSpeed=speed,
         )  # fmt: skip
 
@@ -461,7 +464,10 @@ class SumoSim:
         drives), checks off, and `changeSublane` exact again (see vtypes)."""
         v = self._sumo.vehicle
         for vid in ids:
+            size = self.vehicle_size(vid)
             self.set_agent_type(vid, v.getTypeID(vid).removesuffix(f"@{vid}"))
+            if self.vehicle_size(vid) != size:  # a lorry of the scenario's keeps its own size
+                self.set_vehicle_size(vid, *size)
         self.take_control(ids)
 
     def remove(self, ids: Sequence[str], reason: int = 0) -> None:
@@ -503,6 +509,15 @@ class SumoSim:
         v.setType(vid, vtype)
         v.setParameter(vid, "laneChangeModel.lcAccelLat", f"{AGENT_LC_ACCEL_LAT:g}")
         self._sizes.pop(vid, None)  # another vType, maybe another size
+        self._last = replace(self._last, ids=())  # the next read builds its sizes anew
+
+    def set_vehicle_size(self, vid: str, length: float, width: float) -> None:
+        """A vehicle's own length and width in place of its vType's (SUMO keeps them in a copy of the
+        type, `TYPE@id`): a scenario's lorry that becomes an agent stays as long as it was."""
+        v = self._sumo.vehicle
+        v.setLength(vid, length)
+        v.setWidth(vid, width)
+        self._sizes[vid] = (length, width)
         self._last = replace(self._last, ids=())  # the next read builds its sizes anew
 
     @functools.cached_property

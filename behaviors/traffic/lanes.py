@@ -271,11 +271,20 @@ def surroundings(
         )
         behind = along < 0
         # the body between the two front bumpers: the leader's, or the agent's own for a follower
-        body = np.where(behind, bodies.own_length, bodies.length[m])
+        own_length, own_width = (np.broadcast_to(size, q.shape) for size in bodies.own_size(q))
+        body = np.where(behind, own_length, bodies.length[m])
         seen = square < (GAP_RANGE + body) ** 2
         if not seen.all():  # only where some vehicle is longer than another
             k = np.flatnonzero(seen)
-            q, m, along, across, behind, body = q[k], m[k], along[k], across[k], behind[k], body[k]
+            q, m, along, across, behind, body, own_width = (
+                q[k],
+                m[k],
+                along[k],
+                across[k],
+                behind[k],
+                body[k],
+                own_width[k],
+            )
         # the other car's lateral place in own-lane widths, 0 = own lane centre
         width = agents.lane_width[q]
         lane_units = across * agents.fast_side_sign / width
@@ -295,7 +304,7 @@ def surroundings(
                 if standing.any():
                     s = k[standing]
                     centres = np.abs(lane_units[s] * width[s] - agents.lane_offset[q[s]])
-                    room = centres - (bodies.own_width + other_width[s]) / 2
+                    room = centres - (own_width[s] + other_width[s]) / 2
                     standing[standing] = room >= PASSING_ROOM
                     k = k[~standing]
             slots.append(row_slot[k] + column)

@@ -92,13 +92,17 @@ def surroundings(
     cos, sin = np.cos(axis)[q], np.sin(axis)[q]
     ahead = dx * cos + dy * sin  # the other's front, along the road and across it (positive = left)
     left = dy * cos - dx * sin
+    own_length: np.ndarray | float
+    own_width: np.ndarray | float
     if bodies is None:
         other_length, other_width = np.full(len(m), car.length), np.full(len(m), car.width)
+        own_length, own_width = car.length, car.width
     else:
         other_length, other_width = bodies.length[m], bodies.width[m]
+        own_length, own_width = bodies.own_size(q)
     # overlapping lengthwise: the other's front ahead of the agent's rear, its rear behind the front
-    alongside = close & (ahead < other_length + LENGTHWISE_SLACK) & (ahead > -(car.length + LENGTHWISE_SLACK))
-    side_gap = np.abs(left) - (car.width + other_width) / 2
+    alongside = close & (ahead < other_length + LENGTHWISE_SLACK) & (ahead > -(own_length + LENGTHWISE_SLACK))
+    side_gap = np.abs(left) - (own_width + other_width) / 2
     beside = alongside & (side_gap > 0)  # overlapping sideways already: ahead or behind, not beside
     for side, mask in ((0, beside & (left > 0)), (1, beside & (left < 0))):
         np.minimum.at(room[:, side], q[mask], side_gap[mask])
@@ -113,13 +117,17 @@ def surroundings(
     return Surroundings(room, leader, gap_ahead)
 
 
-def search_reach(top_speed: float, dt: float, car: CarModel, longest: float | None = None) -> float:
+def search_reach(
+    top_speed: float, dt: float, car: CarModel, longest: float | None = None, own_longest: float | None = None
+) -> float:
     """Metres within which a car ahead can limit an agent at `top_speed` (a stopped one at that):
-    its front is up to the `longest` vehicle's length (None: `car`'s) beyond its rear."""
+    its front is up to the `longest` vehicle's length (None: `car`'s) beyond its rear, and the agent
+    up to `own_longest` (None: `car`'s) long."""
     brake = car.max_brake
     stopping = ((top_speed + brake * dt) ** 2) / (2 * brake)
     other = car.length if longest is None else max(longest, car.length)
-    return stopping + STANDSTILL_GAP + (car.length + other) + 2 * car.width
+    own = car.length if own_longest is None else max(own_longest, car.length)
+    return stopping + STANDSTILL_GAP + (own + other) + 2 * car.width
 
 
 def side_limits(room: np.ndarray) -> np.ndarray:

@@ -1283,7 +1283,9 @@ def test_sumo_is_told_the_traffic_drivers_top_sideways_speed_and_carries_its_fas
         for restart in (False, True):
             if restart:
                 sim.restart(options)
-            assert [sim._sumo.vehicletype.getMaxSpeedLat(t) for t in AGENT_VTYPES] == [speed_lat] * 2
+            assert [sim._sumo.vehicletype.getMaxSpeedLat(t) for t in AGENT_VTYPES] == [speed_lat] * len(
+                AGENT_VTYPES
+            )
         sim.add_route("route", ["A", "B"])
         sim.add_vehicle("agent", "route", "behave_keeper", lane=1, pos=50.0, speed=25.0)
         sim.step()

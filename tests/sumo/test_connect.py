@@ -336,7 +336,7 @@ def test_sumo_time_options_read_in_seconds_and_clock_format():
 @pytest.mark.parametrize(
     ("given", "message"),
     [
-        ({"keepers": 2}, "--keepers, --overtakers or --background does not apply"),
+        ({"keepers": 2}, "--keepers, --overtakers, --lorries or --background does not apply"),
         ({"routes": Path(__file__)}, "--routes does not apply"),
         ({"geo": True}, "--geo does not apply"),
         ({"share": 0.0}, "give --share F > 0"),

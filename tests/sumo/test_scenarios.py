@@ -249,6 +249,7 @@ def test_vtypes_define_agents_and_sumo_driven_cars() -> None:
     assert set(types) == {
         "behave_keeper",
         "behave_overtaker",
+        "behave_lorry",
         "behave_passive",
         "behave_background",
     }
@@ -256,6 +257,9 @@ def test_vtypes_define_agents_and_sumo_driven_cars() -> None:
     assert physics == {k: v for k, v in types["behave_overtaker"].items() if k not in ("id", "color")}
     assert types["behave_keeper"]["color"] != types["behave_overtaker"]["color"]
     assert float(types["behave_passive"]["maxSpeed"]) < float(types["behave_keeper"]["maxSpeed"])
+    lorry = types["behave_lorry"]
+    assert lorry["vClass"] == "truck" and float(lorry["length"]) > 3 * float(types["behave_keeper"]["length"])
+    assert float(lorry["accel"]) < float(types["behave_keeper"]["accel"])
 
 
 def test_unknown_scenario_names_the_choices() -> None:

@@ -22,6 +22,7 @@ from behaviors.traffic.rewards import TrafficStep, TrafficWeights, styled_reward
 from behaviors.traffic.styles import (
     HEADWAY_RANGE,
     KEEPER,
+    LORRY,
     OVERTAKER,
     action_of_headway,
     draw_styles,
@@ -76,9 +77,9 @@ def test_a_population_file_gives_other_distributions_and_bad_ones_are_refused(tm
     }  # fmt: skip
     good = tmp_path / "calm.json"
     good.write_text(json.dumps({"keeper": fields, "overtaker": fields}))
-    keeper, _ = read_population(str(good))
+    keeper, _, _ = read_population(str(good))
     assert keeper.headway_median == 2.0 and keeper.speed_range == (0.8, 1.2)
-    assert read_population("default") == (KEEPER, OVERTAKER)
+    assert read_population("default") == (KEEPER, OVERTAKER, LORRY)
     for dist in read_population("highd"):
         dist.check("highd")  # the fitted preset is within the ranges a file must keep
     bad = tmp_path / "bad.json"
