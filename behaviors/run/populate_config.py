@@ -18,10 +18,10 @@ from behaviors.learn.policy import PRETRAINED, RULES, Policy, load_policy, rules
 from behaviors.learn.policy import resolve as resolve_policy
 from behaviors.report.fcd_read import FCD_SUFFIXES
 from behaviors.run.precision import PRECISIONS, use_bfloat16
+from behaviors.sumo.display import check_display
 from behaviors.sumo.fcd_parquet import PRECISION as PARQUET_PRECISION
 from behaviors.sumo.joined import SUMO_NET
 from behaviors.sumo.scenario_config import SUMO_STEP_LENGTH, lateral_for, plan_run, read_sumocfg
-from behaviors.sumo.sim import check_display
 from behaviors.sumo.traci_connection import parse_address
 from sumo_scenarios import get_scenario
 

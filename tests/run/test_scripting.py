@@ -19,8 +19,9 @@ from helpers import BEHAVE, behave
 from behaviors.cli.progress import ProgressLines, line_due, verbosity
 from behaviors.errors import BehaveError
 from behaviors.report.fcd_read import read_fcd, validate_fcd_xml
+from behaviors.sumo.display import display_missing
 from behaviors.sumo.interrupt import sigint_between_steps
-from behaviors.sumo.sim import SimOptions, display_missing
+from behaviors.sumo.sim import SimOptions
 
 # -q / -v and progress lines ---------------------------------------------------------------------
 
