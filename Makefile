@@ -104,8 +104,9 @@ ablation: $(STAMP)
 		--doc docs/ablation-styled.md --out runs/ablation-styled
 
 # like people (issue 43): a highD-like 2-lane Autobahn at 130 km/h with a fifth lorries, SUMO alone and every
-# car learned (traffic.pt; styled.pt too once it exists), closest headways, lane changes, mean speeds and lane
-# keeping through a 420 m window against highD's published figures, seeds 0-2 (a few minutes); docs/people.md
+# car learned (traffic.pt; styled.pt with its default and its highd population; and with the lorries learned
+# too), closest headways, lane changes, mean speeds and lane keeping through a 420 m window against highD's
+# published figures, seeds 0-2 (about ten minutes); docs/people.md
 people: $(STAMP)
 	$(BIN)/python benchmarks/people.py --seeds 0,1,2 --duration 900
 

@@ -13,7 +13,8 @@ highD). The sumocfg steps 0.2 s (the policies' step) in every run. Then, per see
   SUMO's cars drive by beside agents;
 * one run per `--policies` entry with every car learned (`--share 1.0`: each passenger car becomes an
   agent as it departs, half keepers and half overtakers; lorries stay SUMO's, since `--share` draws
-  only car-sized vehicles and no bundled policy drives a lorry).
+  only car-sized vehicles), and with `+lorries` every vehicle (`--share-lorries`: the lorries become
+  the styled policy's learned lorries, at their own size).
 
 Each run's FCD is measured by behaviors.report.people through the 420 m window `--window-start` +420 m,
 after `--warmup` s: per group (cars, lorries), the closest time headways, the share changing lane,
@@ -96,17 +97,23 @@ class Variant:
     policy: str | None = None
     sublanes: bool = False
     population: str | None = None  # a styled policy's --population
+    lorries: bool = False  # the lorries learned too (--share-lorries)
 
 
 def variants(policies: list[str]) -> list[Variant]:
-    """SUMO alone, with and without sublanes, and each policy (`POLICY` or `POLICY@POPULATION`: a styled
-    policy's agents drawn from that population) with every car learned."""
+    """SUMO alone, with and without sublanes, and each policy (`POLICY`, `POLICY@POPULATION`: a styled
+    policy's agents drawn from that population; `+lorries` at the end: the lorries learned too) with
+    every car learned."""
     out = [Variant("sumo", "SUMO", 0.0), Variant("sumo-sublanes", "SUMO sublanes", 0.0, sublanes=True)]
     for entry in policies:
-        policy, _, population = entry.partition("@")
+        lorries = entry.endswith("+lorries")
+        policy, _, population = entry.removesuffix("+lorries").partition("@")
         name = Path(policy).stem if policy.endswith(".pt") or "/" in policy else policy
         name += f"@{Path(population).stem}" if population else ""
-        out.append(Variant(f"learned-{name}", f"all cars {name}", 1.0, policy, population=population or None))
+        key, label = f"learned-{name}", f"all cars {name}"
+        if lorries:
+            key, label = f"{key}+lorries", f"every vehicle {name}"
+        out.append(Variant(key, label, 1.0, policy, population=population or None, lorries=lorries))
     return out
 
 
@@ -185,6 +192,8 @@ def run_one(variant: Variant, seed: int, args: argparse.Namespace, net: Path, ro
         command += ["--policy", variant.policy]
     if variant.population is not None:
         command += ["--population", variant.population]
+    if variant.lorries:
+        command.append("--share-lorries")
     before, started = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True)
     after, wall = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter() - started
@@ -333,7 +342,11 @@ def main() -> None:
     args = parser.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     if args.policies is None:
-        policies = ["traffic", *([os.path.relpath(STYLED)] if STYLED.is_file() else [])]
+        styled = os.path.relpath(STYLED)
+        policies = [
+            "traffic",
+            *([styled, f"{styled}@highd", f"{styled}@highd+lorries"] if STYLED.is_file() else []),
+        ]
     else:
         policies = [p for p in args.policies.split(",") if p]
     if not args.window_start + WINDOW_M <= ROAD_M or not 0 <= args.warmup < args.duration:
@@ -371,8 +384,8 @@ def main() -> None:
         f"{args.warmup:g} s left out; the window {args.window_start:g}-{args.window_start + WINDOW_M:g} m,",
         "vehicles that drove through it whole. `SUMO`: SUMO's default drivers alone (no sublanes);",
         f"`SUMO sublanes`: the same with lateral resolution {SUBLANE_M:g} m (SL2015); `all cars <policy>`:",
-        "`--share 1.0`, every passenger car an agent (half keepers, half overtakers), the lorries SUMO's",
-        "(`--share` draws only car-sized vehicles; no policy drives lorries yet). The reference is highD",
+        "`--share 1.0`, every passenger car an agent (half keepers, half overtakers), the lorries SUMO's;",
+        "`every vehicle <policy>`: the lorries learned too (`--share-lorries`). The reference is highD",
         "location 2's published per-vehicle aggregates (the shared realism notes): the closest-headway",
         "distribution is a lognormal fitted to median 1.4 s and P(< 1 s) = 1/3 (cars; lorries 2.2 s and",
         "1/6), a distribution fitted to published figures, not the data; mean speeds are compared in shape",
