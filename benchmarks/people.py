@@ -60,6 +60,7 @@ from behaviors.report.people import (
     like_people,
     per_vehicle,
 )
+from sumo_scenarios.build import LORRY_SIZE
 from sumo_scenarios.osm_like import Way, run_netconvert, write_plain
 
 ROAD = "autobahn2"
@@ -70,9 +71,10 @@ LIMIT = 130 / 3.6
 LORRY = {"length": 16.5, "maxSpeed": 25.0, "accel": 1.0}
 STEP_S = 0.2
 SUBLANE_M = 0.8
-LENGTHS = {"lorry": LORRY["length"]}
-"""vType -> length; every other type (car, behave's agents) is 5 m."""
-GROUPS = {"lorry": LORRIES}
+LENGTHS = {"lorry": LORRY["length"], "behave_lorry": LORRY_SIZE[0]}
+"""vType -> length; every other type (car, behave's keepers and overtakers) is 5 m. A learned lorry
+of the scenario's keeps its length in a copy of behave's type (`behave_lorry@ID`)."""
+GROUPS = {"lorry": LORRIES, "behave_lorry": LORRIES}
 """vType -> group; every other type is a car (SUMO's `car`, behave's keepers and overtakers)."""
 STYLED = PRETRAINED / "styled.pt"
 BAR_PARTS = {

@@ -267,7 +267,7 @@ class Population:
         for vid, kind in zip(agents, kinds, strict=True):
             size = sim.vehicle_size(vid)
             sim.set_agent_type(vid, AGENT_TYPE_OF[kind])
-            if kind == "lorry":
+            if kind == "lorry" and sim.vehicle_size(vid) != size:
                 sim.set_vehicle_size(vid, *size)
         sim.take_control(agents)
         behaviour = np.array([KINDS.index(kind) for kind in kinds], float)
