@@ -154,6 +154,7 @@ class Run:
     seed: int
     policy: Path
     out: Path
+    population: str | None = None  # a styled policy's --population
     warmup: float = WARMUP_S
     measure: float = MEASURE_S
     discharge: bool = False
@@ -190,7 +191,7 @@ def run_one(run: Run) -> dict:
     fcd = folder / "fcd.parquet"
     config = PopulateConfig(
         net=run.net, keepers=keepers, overtakers=overtakers, background=cars, policy=run.policy,
-        duration=DISCHARGE_END_S if run.discharge else run.warmup + run.measure, seed=run.seed, fcd=fcd,
+        population=run.population, duration=DISCHARGE_END_S if run.discharge else run.warmup + run.measure, seed=run.seed, fcd=fcd,
         keep_count=True, shield=True,
         routes=blockers(folder / "blockers.rou.xml", road.lanes[BLOCK_EDGE]) if run.discharge else None,
     )  # fmt: skip
@@ -356,6 +357,7 @@ def commit() -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--policy", type=Path, default=DEFAULT_POLICY)
+    parser.add_argument("--population", default=None, help="a styled policy's --population")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=2, help="populate runs at a time (one SUMO each)")
     parser.add_argument("--out", type=Path, default=Path("runs/flow"))
@@ -366,10 +368,10 @@ def main() -> None:
     args = parser.parse_args()
     start = time.perf_counter()
     nets = roads(args.out / "nets")
-    runs = [Run(road, net, fleet, density, args.seed, args.policy, args.out)
+    runs = [Run(road, net, fleet, density, args.seed, args.policy, args.out, args.population)
             for road, net in nets.items() for density in DENSITIES for fleet in FLEETS]  # fmt: skip
     queue_runs = [Run("highway", nets["highway"], fleet, DISCHARGE_DENSITY, args.seed, args.policy,
-                      args.out / "discharge", discharge=True) for fleet in FLEETS]  # fmt: skip
+                      args.out / "discharge", args.population, discharge=True) for fleet in FLEETS]  # fmt: skip
     if args.quick:
         runs = [
             replace(r, warmup=20.0, measure=60.0) for r in runs if r.road == "highway" and r.density == 13
@@ -398,8 +400,10 @@ def document(
         "# Flow against density: SUMO alone and learned fleets (issue 23)",
         "",
         f"Measured on commit {commit()} with `python benchmarks/flow.py --seed {args.seed} --jobs {args.jobs}"
-        f"{'' if args.policy == DEFAULT_POLICY else f' --policy {args.policy} --doc {args.doc}'}` "
-        f"(`make flow` runs the default policy), policy `{args.policy.name}`, shield on, `--keep-count`, "
+        f"{'' if args.policy == DEFAULT_POLICY else f' --policy {args.policy} --doc {args.doc}'}"
+        f"{f' --population {args.population}' if args.population else ''}` "
+        f"(`make flow` runs the default policy), policy `{args.policy.name}`"
+        f"{f' (population {args.population})' if args.population else ''}, shield on, `--keep-count`, "
         "step 0.2 s; "
         f"{os.cpu_count()} cores, {wall / 60:.1f} min wall time for all "
         f"{len(flow_rows) + len(queue_rows)} runs.",
