@@ -191,7 +191,8 @@ def run_one(run: Run) -> dict:
     fcd = folder / "fcd.parquet"
     config = PopulateConfig(
         net=run.net, keepers=keepers, overtakers=overtakers, background=cars, policy=run.policy,
-        population=run.population, duration=DISCHARGE_END_S if run.discharge else run.warmup + run.measure, seed=run.seed, fcd=fcd,
+        population=run.population, seed=run.seed, fcd=fcd,
+        duration=DISCHARGE_END_S if run.discharge else run.warmup + run.measure,
         keep_count=True, shield=True,
         routes=blockers(folder / "blockers.rou.xml", road.lanes[BLOCK_EDGE]) if run.discharge else None,
     )  # fmt: skip
@@ -371,7 +372,8 @@ def main() -> None:
     runs = [Run(road, net, fleet, density, args.seed, args.policy, args.out, args.population)
             for road, net in nets.items() for density in DENSITIES for fleet in FLEETS]  # fmt: skip
     queue_runs = [Run("highway", nets["highway"], fleet, DISCHARGE_DENSITY, args.seed, args.policy,
-                      args.out / "discharge", args.population, discharge=True) for fleet in FLEETS]  # fmt: skip
+                      args.out / "discharge", args.population, discharge=True)
+                  for fleet in FLEETS]  # fmt: skip
     if args.quick:
         runs = [
             replace(r, warmup=20.0, measure=60.0) for r in runs if r.road == "highway" and r.density == 13
