@@ -205,7 +205,7 @@ PASSENGER_DECEL = 4.5
 
 PASSENGER_MIN_GAP = 2.5
 """m: SUMO's passenger car's standing gap (its vType default), the agents' and SUMO's cars' alike;
-the agents' car-following law stands as far behind a car (`actuation.CarFollowing.min_gap`)."""
+the agents' car-following law stands as far behind a car (`settings.CarFollowing.min_gap`)."""
 
 AGENT_LC_ACCEL_LAT = 100.0
 """m/s^2: the agents' lcAccelLat, so large that SUMO's sublane model moves a car exactly as far

@@ -218,12 +218,12 @@ def cli_options() -> set[str]:
 
 
 def is_setting(name: str) -> bool:
-    """`Class.field[.field]`: a field of a settings dataclass of behaviors.traffic.actuation (`LaneDriving`,
+    """`Class.field[.field]`: a field of a settings dataclass of behaviors.traffic.settings (`LaneDriving`,
     `CarFollowing`, ...; every one has defaults), through nested settings (`LaneDriving.following.accel`)."""
-    from behaviors.traffic import actuation
+    from behaviors.traffic import settings
 
     owner, *path = name.split(".")
-    found = getattr(actuation, owner, None)
+    found = getattr(settings, owner, None)
     if not (isinstance(found, type) and dataclasses.is_dataclass(found) and path):
         return False
     found = found()

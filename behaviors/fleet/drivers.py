@@ -22,16 +22,7 @@ from behaviors.paper.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYO
 from behaviors.road.neighbours import neighbours
 from behaviors.road.routes import lane_leads_on
 from behaviors.sumo.sim import SumoSim
-from behaviors.traffic.actuation import (
-    Actuation,
-    CarModel,
-    LaneCommand,
-    LaneDriving,
-    LaneHabits,
-    actuate,
-    actuate_lanes,
-    look_ahead,
-)
+from behaviors.traffic.actuation import Actuation, LaneCommand, actuate, actuate_lanes
 from behaviors.traffic.bodies import Bodies
 from behaviors.traffic.lanes import (
     TRAFFIC_LAYOUT,
@@ -51,6 +42,8 @@ from behaviors.traffic.rewards import (
     styled_rewards,
     traffic_rewards,
 )
+from behaviors.traffic.scene import AgentStyle, LaneNeighbours, Motion, RoadPlace, ShieldBounds, look_ahead
+from behaviors.traffic.settings import CarModel, DriverSettings, LaneDriving, LaneHabits
 from behaviors.traffic.styles import (
     HEADWAY_RANGE,
     PRESETS,
@@ -150,7 +143,7 @@ class PaperDriver:
         assert f is not None
         return actuate(
             actions, r.speed, r.angle, f.offset, f.half_width, f.curvature, f.speed_limit,
-            fleet.dt, fleet.car, r.side_limit, r.speed_cap,
+            fleet.dt, fleet.car, ShieldBounds(r.side_limit, r.speed_cap),
         )  # fmt: skip
 
 
@@ -167,7 +160,7 @@ class TrafficRows:
     top_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # m/s never wanted beyond (a limiter)
     lateral_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
     lateral_accel: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
-    changing: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # see actuation.lane_intent
+    changing: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # see intent.lane_intent
     held_for: np.ndarray = field(default_factory=lambda: np.zeros(0))  # s held up without a break
     lane_number: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # -1 = not sensed yet
     lane_count: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -451,14 +444,17 @@ class TrafficDriver:
         r, f, own = fleet.rows, fleet.rows.frame, fleet.rows.own
         lanes, around = own.lanes, own.around
         assert f is not None and lanes is not None and around is not None
+        motion = Motion(
+            r.speed, lanes.desired_speed, own.lateral_speed, own.lateral_accel, own.changing, own.held_for
+        )
+        place = RoadPlace(
+            lanes.lane_offset, lanes.lane_width, lanes.lanes - 1 - lanes.lane_number, lanes.lane_number,
+            f.offset, f.half_width, f.speed_limit, lanes.lane_leads_on, self.may_begin(fleet),
+        )  # fmt: skip
         return actuate_lanes(
-            actions, r.speed, lanes.desired_speed, around.gap, around.other_speed,
-            own.lateral_speed, own.lateral_accel, own.changing, lanes.lane_offset, lanes.lane_width,
-            lanes.lanes - 1 - lanes.lane_number, lanes.lane_number, f.offset, f.half_width, f.speed_limit,
-            fleet.dt, fleet.car, lateral, r.side_limit, r.speed_cap, lanes.lane_leads_on,
-            self.may_begin(fleet), habits, (around.far_fast_gap, around.far_fast_speed),
-            own.held_for,
-            (around.lane_follower_gap, around.lane_follower_speed), own.asking, time_headway, lane_bias,
+            actions, motion, place, LaneNeighbours.sensed(around, own.asking),
+            DriverSettings(lateral, fleet.dt, fleet.car), AgentStyle(habits, time_headway, lane_bias),
+            ShieldBounds(r.side_limit, r.speed_cap),
         )  # fmt: skip
 
     @staticmethod
@@ -467,11 +463,15 @@ class TrafficDriver:
         agents that drive themselves (`held_for`: the seconds held up too)."""
         r, f, own = fleet.rows, fleet.rows.frame, fleet.rows.own
         assert f is not None
-        # a junction's internal edge holds only the lanes of some connections, not the
-        # carriageway: the move stays clamped to it, but leaving it is not off the road
-        result = replace(command.actuation, off_track=command.actuation.off_track & f.on_normal_edge)
-        assert result.lateral_speed is not None
         mine = ~r.handed  # SUMO drives the others: no lane change of ours goes on
+        result = replace(
+            command.actuation,
+            # a junction's internal edge holds only the lanes of some connections, not the
+            # carriageway: the move stays clamped to it, but leaving it is not off the road
+            off_track=command.actuation.off_track & f.on_normal_edge,
+            limits={name: int((hit & mine).sum()) for name, hit in command.limited.items()},
+        )
+        assert result.lateral_speed is not None
         own.changing = np.where(mine, command.changing, 0)
         own.lateral_accel = np.where(mine, command.lateral_accel, 0.0)
         if held_for:

@@ -28,8 +28,8 @@ from behaviors.report.render import RENDER_MODES, check_render_mode, top_down
 from behaviors.road.geometry import RoadGeometry
 from behaviors.sumo.sim import SumoSim, VehicleState
 from behaviors.sumo.timing import PhaseTimer
-from behaviors.traffic.actuation import CarModel
 from behaviors.traffic.rewards import StepTerms, check_reward_weights
+from behaviors.traffic.settings import CarModel
 from sumo_scenarios import SCENARIO_NAMES, Scenario, get_scenario
 from sumo_scenarios.build import AGENT_VTYPES
 

@@ -42,7 +42,7 @@ from behaviors.sumo.scenario_config import (
 )
 from behaviors.sumo.sim import SimOptions, SumoSim, VehicleState
 from behaviors.sumo.timing import PhaseTimer
-from behaviors.traffic.actuation import CarModel
+from behaviors.traffic.settings import CarModel
 from behaviors.traffic.styles import KINDS, read_population
 
 LORRY_CLASSES = ("truck", "trailer")

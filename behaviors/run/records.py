@@ -26,7 +26,7 @@ from behaviors.report.agents_table import (
 )
 from behaviors.road.geometry import RoadGeometry
 from behaviors.sumo.sim import STANDSTILL_SPEED
-from behaviors.traffic.actuation import CarModel
+from behaviors.traffic.settings import CarModel
 from behaviors.traffic.styles import KINDS, Styles
 
 AGENT_TYPE_OF = dict(zip(KINDS, (KEEPER_TYPE, OVERTAKER_TYPE, LORRY_TYPE), strict=True))

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from behaviors.traffic.actuation import CarModel
+from behaviors.traffic.settings import CarModel
 
 
 @dataclass(frozen=True)

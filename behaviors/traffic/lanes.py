@@ -22,8 +22,8 @@ import numpy as np
 from behaviors.road.geometry import NEXT_LANES_SEEN, RoadGeometry, road_coordinates
 from behaviors.road.neighbours import Neighbours, nearest_per_slot, neighbours, within
 from behaviors.sumo.sim import STANDSTILL_SPEED
-from behaviors.traffic.actuation import nan_as
 from behaviors.traffic.bodies import Bodies
+from behaviors.traffic.law import nan_as
 from behaviors.traffic.shield import PASSING_ROOM
 
 SPEED_SCALE = 40.0

@@ -9,8 +9,8 @@ from behaviors.errors import BehaveError
 from behaviors.fleet.drivers import DRIVERS, PaperDriver, TrafficDriver, driver_of_obs_size, make_driver
 from behaviors.learn.env import make_env
 from behaviors.paper.sensors import OBS_SIZE, OBS_SIZE_WITH_ID
-from behaviors.traffic.actuation import CarFollowing, LaneDriving
 from behaviors.traffic.lanes import TRAFFIC_OBS_SIZE
+from behaviors.traffic.settings import CarFollowing, LaneDriving
 
 
 class CautiousDriver(TrafficDriver):

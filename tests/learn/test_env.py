@@ -15,8 +15,8 @@ from behaviors.learn.metrics import passed_fraction
 from behaviors.paper.sensors import SLICES
 from behaviors.sumo.sim import VehicleState
 from behaviors.sumo.sumo_home import sumo_binary
-from behaviors.traffic.actuation import CarModel
 from behaviors.traffic.rewards import COLLISION_PENALTY, OFF_TRACK_PENALTY
+from behaviors.traffic.settings import CarModel
 
 CAR = CarModel()
 

@@ -25,22 +25,8 @@ from behaviors.run.populate_config import config_from
 from behaviors.sumo.sim import SimOptions, SumoSim
 from behaviors.sumo.sumo_home import sumo_binary
 from behaviors.sumo.timing import PhaseTimer
-from behaviors.traffic.actuation import (
-    CarFollowing,
-    CarModel,
-    LaneDriving,
-    Rules,
-    actuate_lanes,
-    falling_in,
-    following_accel,
-    gap_acceptable,
-    lane_intent,
-    lane_traffic,
-    lateral_profile,
-    letting_in,
-    look_ahead,
-    slow_side_free,
-)
+from behaviors.traffic.actuation import actuate_lanes
+from behaviors.traffic.intent import lane_intent, lane_wish
 from behaviors.traffic.lanes import (
     GAP_RANGE,
     TRAFFIC_OBS_SIZE,
@@ -50,7 +36,13 @@ from behaviors.traffic.lanes import (
     road_coordinates,
     surroundings,
 )
+from behaviors.traffic.lateral import lateral_profile
+from behaviors.traffic.law import following_accel
+from behaviors.traffic.limits import gap_acceptable
+from behaviors.traffic.motives import LaneWishes, falling_in, letting_in, slow_side_free
 from behaviors.traffic.rewards import TrafficStep, TrafficWeights, traffic_rewards
+from behaviors.traffic.scene import AgentStyle, LaneNeighbours, Motion, RoadPlace, lane_traffic, look_ahead
+from behaviors.traffic.settings import CarFollowing, CarModel, DriverSettings, LaneDriving, Rules
 from behaviors.traffic.shield import surroundings as shield_surroundings
 from behaviors.traffic.styles import fixed_styles
 from sumo_scenarios import get_scenario
@@ -368,6 +360,9 @@ NO_LEADERS = (np.full((1, 6), np.inf), np.full((1, 6), np.nan))
 MECHANICS = LaneDriving(rules=Rules.none())
 """The execution layer without the rules of the road: the policy's lane choice alone."""
 
+DT = 0.2
+"""s: the step `drive_lanes` drives at."""
+
 
 def drive_lanes(
     steers,
@@ -376,7 +371,6 @@ def drive_lanes(
     lanes=3,
     lane=1,
     width=3.5,
-    dt=0.2,
     leaders=NO_LEADERS,
     lateral=MECHANICS,
     behaviour=None,
@@ -385,8 +379,9 @@ def drive_lanes(
     """Run the traffic driver's actuation alone for one agent on a straight road with `lanes` lanes,
     keeping the books SUMO would (a car whose centre crosses a line is in the next lane, its offset
     jumps by a lane width); returns per step the lane, the offset in it, lateral speed and accel.
-    `behaviour` ("keeper"/"overtaker"; None: no habits) drives with TrafficDriver's habits for it."""
-    car = CarModel()
+    `behaviour` ("keeper"/"overtaker"; None: no habits) drives with TrafficDriver's habits for it.
+    Steps of DT seconds."""
+    car, dt = CarModel(), DT
     state = dict(
         speed=np.array([speed]), lat=np.array([0.0]), acc=np.array([0.0]), changing=np.array([0]),
         held=np.array([0.0]),
@@ -400,11 +395,28 @@ def drive_lanes(
             agent = one_agent(lane_number=np.array([lane]), lanes=np.array([lanes]), behaviour_id=flag)
             habits = TrafficDriver(lateral).habits(agent)
         out = actuate_lanes(
-            np.array([[steer, 0.5, 0.0]]), state["speed"], np.array([speed]), *leaders, state["lat"],
-            state["acc"], state["changing"], offset, np.array([width]), np.array([lanes - 1 - lane]),
-            np.array([lane]), carriageway, np.array([lanes * width / 2]), np.array([33.3]), dt, car, lateral,
-            habits=habits, far_fast_leader=far_fast_leader, held_for=state["held"],
-        )  # fmt: skip
+            np.array([[steer, 0.5, 0.0]]),
+            Motion(
+                state["speed"],
+                np.array([speed]),
+                state["lat"],
+                state["acc"],
+                state["changing"],
+                held_for=state["held"],
+            ),
+            RoadPlace(
+                offset,
+                np.array([width]),
+                np.array([lanes - 1 - lane]),
+                np.array([lane]),
+                carriageway,
+                np.array([lanes * width / 2]),
+                np.array([33.3]),
+            ),
+            LaneNeighbours(*leaders, far_fast_leader=far_fast_leader),
+            DriverSettings(lateral, dt, car),
+            AgentStyle(habits=habits),
+        )
         a = out.actuation
         offset = offset + a.lateral_move
         if abs(offset[0]) > width / 2:  # SUMO moves the car to the next lane
@@ -422,8 +434,8 @@ def drive_lanes(
 
 
 def test_a_lane_change_is_a_smooth_commitment_to_the_neighbour_lane_centre():
-    dt = 0.2
-    run = drive_lanes([1.0] + [0.0] * 60, dt=dt)  # one step of full steer, then steer 0
+    dt = DT
+    run = drive_lanes([1.0] + [0.0] * 60)  # one step of full steer, then steer 0
     lane, offset, lat_speed, lat_accel = run[:, 0], run[:, 1], run[:, 2], run[:, 3]
     assert lane[-1] == 2 and abs(offset[-1]) < 0.02  # in the new lane, at its centre
     moving = np.flatnonzero(np.abs(lat_speed) > 0.05)
@@ -454,10 +466,20 @@ def test_a_change_waits_for_a_gap_a_driver_would_take():
     assert fast_ok.tolist() == [True, False, False, True]
     car = CarModel()
     waiting = actuate_lanes(
-        np.array([[1.0, 0.5, 0.0]]), speed[:1], desired[:1], gap[1:2], other[1:2], np.zeros(1), np.zeros(1),
-        np.array([0]), np.zeros(1), np.array([3.5]), np.array([1]), np.array([1]), np.zeros(1),
-        np.array([5.25]), np.array([33.3]), 0.2, car, lateral,
-    )  # fmt: skip
+        np.array([[1.0, 0.5, 0.0]]),
+        Motion(speed[:1], desired[:1], np.zeros(1), np.zeros(1), np.array([0])),
+        RoadPlace(
+            np.zeros(1),
+            np.array([3.5]),
+            np.array([1]),
+            np.array([1]),
+            np.zeros(1),
+            np.array([5.25]),
+            np.array([33.3]),
+        ),
+        LaneNeighbours(gap[1:2], other[1:2]),
+        DriverSettings(lateral, 0.2, car),
+    )
     assert waiting.changing[0] == 0 and waiting.actuation.lateral_move[0] == 0.0
 
 
@@ -490,11 +512,20 @@ def test_a_car_reaching_over_a_line_keeps_behind_that_lanes_leader(offset, later
     gap[0, 2], other[0, 2] = 3.1, 15.0  # the fast-side lane's leader, just put down there
     gap[0, 4:] = 0.0  # no slow-side lane
     out = actuate_lanes(
-        np.array([[0.0, 0.5, 0.0]]), np.array([18.8]), np.array([30.0]), gap, other,
-        np.array([lateral_speed]), np.array([0.0]), np.array([0]), np.array([offset]), np.array([3.5]),
-        np.array([2]), np.array([0]), np.array([offset - 3.5]), np.array([5.25]), np.array([33.3]), 0.2,
-        car, ruled,
-    )  # fmt: skip
+        np.array([[0.0, 0.5, 0.0]]),
+        Motion(np.array([18.8]), np.array([30.0]), np.array([lateral_speed]), np.array([0.0]), np.array([0])),
+        RoadPlace(
+            np.array([offset]),
+            np.array([3.5]),
+            np.array([2]),
+            np.array([0]),
+            np.array([offset - 3.5]),
+            np.array([5.25]),
+            np.array([33.3]),
+        ),
+        LaneNeighbours(gap, other),
+        DriverSettings(ruled, 0.2, car),
+    )
     braking = (out.actuation.speed[0] - 18.8) / 0.2
     assert braking < -3.0 if brakes else braking > 0.0
 
@@ -509,10 +540,20 @@ def test_lateral_motion_is_limited_at_low_speed_and_at_the_border():
     assert np.abs(slow[:, 2]).max() <= LaneDriving().max_slip * 2.0 + 1e-9
     car, lateral = CarModel(), MECHANICS
     edge = actuate_lanes(
-        np.array([[0.0, 0.5, 0.0]]), np.array([30.0]), np.array([30.0]), *NO_LEADERS, np.array([1.2]),
-        np.array([0.0]), np.array([0]), np.array([-0.5]), np.array([3.5]), np.array([0]), np.array([2]),
-        np.array([4.3]), np.array([5.25]), np.array([33.3]), 0.2, car, lateral,
-    )  # fmt: skip
+        np.array([[0.0, 0.5, 0.0]]),
+        Motion(np.array([30.0]), np.array([30.0]), np.array([1.2]), np.array([0.0]), np.array([0])),
+        RoadPlace(
+            np.array([-0.5]),
+            np.array([3.5]),
+            np.array([0]),
+            np.array([2]),
+            np.array([4.3]),
+            np.array([5.25]),
+            np.array([33.3]),
+        ),
+        LaneNeighbours(*NO_LEADERS),
+        DriverSettings(lateral, 0.2, car),
+    )
     assert edge.actuation.off_track[0]
 
 
@@ -549,14 +590,18 @@ def test_rules_of_the_road_no_passing_on_the_slow_side_at_speed():
     ruled, car = LaneDriving(), CarModel()
     fast_lane_leader = leaders_of(fast_lead=(2, 10.0, 25.0))  # 10 m ahead in the fast lane, 5 m/s slower
     gap, other = fast_lane_leader
-    args = (np.array([30.0]), np.array([30.0]), gap, other, np.zeros(1), np.zeros(1), np.array([0]),
-            np.zeros(1), np.array([3.5]), np.array([1]), np.array([1]), np.zeros(1), np.array([5.25]),
-            np.array([33.3]), 0.2, car)  # fmt: skip
-    ruled_speed = actuate_lanes(np.array([[0.0, 0.5, 0.0]]), *args, ruled).actuation.speed[0]
-    free_speed = actuate_lanes(np.array([[0.0, 0.5, 0.0]]), *args, MECHANICS).actuation.speed[0]
+    args = (
+        Motion(np.array([30.0]), np.array([30.0]), np.zeros(1), np.zeros(1), np.array([0])),
+        RoadPlace(np.zeros(1), np.array([3.5]), np.array([1]), np.array([1]), np.zeros(1), np.array([5.25]),
+                  np.array([33.3])),
+        LaneNeighbours(gap, other),
+    )  # fmt: skip
+    steer_none = np.array([[0.0, 0.5, 0.0]])
+    ruled_speed = actuate_lanes(steer_none, *args, DriverSettings(ruled, 0.2, car)).actuation.speed[0]
+    free_speed = actuate_lanes(steer_none, *args, DriverSettings(MECHANICS, 0.2, car)).actuation.speed[0]
     assert ruled_speed < 30.0 - 0.2 and free_speed >= 30.0 - 1e-9  # it brakes not to pass on the right
     other[0, 2] = 12.0  # the fast lane crawls (below 60 km/h): passing on the right is allowed
-    crawl = actuate_lanes(np.array([[0.0, 0.5, 0.0]]), *args, ruled).actuation.speed[0]
+    crawl = actuate_lanes(steer_none, *args, DriverSettings(ruled, 0.2, car)).actuation.speed[0]
     assert crawl >= 30.0 - 1e-9
 
 
@@ -619,10 +664,20 @@ def test_sumo_takes_a_car_over_the_line_of_an_ending_lane_unless_it_is_moving_aw
 def test_a_standing_car_edges_sideways_into_a_gap():
     ruled = LaneDriving()
     out = actuate_lanes(
-        np.array([[0.0, 0.5, 0.0]]), np.zeros(1), np.array([30.0]), *NO_LEADERS, np.zeros(1), np.zeros(1),
-        np.array([1]), np.zeros(1), np.array([3.5]), np.array([1]), np.array([1]), np.zeros(1),
-        np.array([5.25]), np.array([33.3]), 0.2, CarModel(), ruled,
-    )  # fmt: skip
+        np.array([[0.0, 0.5, 0.0]]),
+        Motion(np.zeros(1), np.array([30.0]), np.zeros(1), np.zeros(1), np.array([1])),
+        RoadPlace(
+            np.zeros(1),
+            np.array([3.5]),
+            np.array([1]),
+            np.array([1]),
+            np.zeros(1),
+            np.array([5.25]),
+            np.array([33.3]),
+        ),
+        LaneNeighbours(*NO_LEADERS),
+        DriverSettings(ruled, 0.2),
+    )
     assert 0.0 < out.actuation.lateral_speed[0] <= ruled.crawl_lateral_speed
 
 
@@ -680,11 +735,21 @@ def test_a_car_whose_lane_ends_falls_in_behind_the_car_beside_it_and_moves_out_6
 
     def change_begins(leads_on: float, leaders=NO_LEADERS) -> tuple[int, float]:
         out = actuate_lanes(
-            np.array([[0.0, 0.5, 0.0]]), speed, desired, *leaders, np.zeros(1), np.zeros(1),
-            np.zeros(1, int), np.zeros(1), np.array([3.5]), np.array([2]), np.array([0]), np.array([-3.5]),
-            np.array([5.25]), np.array([33.3]), 0.2, CarModel(), ruled,
-            lane_leads_on=np.array([[leads_on, np.inf, -1.0]]),
-        )  # fmt: skip
+            np.array([[0.0, 0.5, 0.0]]),
+            Motion(speed, desired, np.zeros(1), np.zeros(1), np.zeros(1, int)),
+            RoadPlace(
+                np.zeros(1),
+                np.array([3.5]),
+                np.array([2]),
+                np.array([0]),
+                np.array([-3.5]),
+                np.array([5.25]),
+                np.array([33.3]),
+                lane_leads_on=np.array([[leads_on, np.inf, -1.0]]),
+            ),
+            LaneNeighbours(*leaders),
+            DriverSettings(ruled, 0.2),
+        )
         return int(out.changing[0]), float(out.actuation.speed[0])
 
     assert change_begins(550.0)[0] == 1  # the own lane ends 550 m on: over to the fast side
@@ -699,9 +764,15 @@ def test_no_lane_change_begins_inside_a_junction_but_one_under_way_goes_on():
     changing, offset, width = np.array([0, 1]), np.array([0.0, 0.5]), np.array([3.5, 3.5])
     ok = np.ones((2, 2), bool)
     free = np.zeros(2, bool)
-    open_road = lane_intent(steer, changing, offset, width, lanes, lanes, ok, ruled, free, np.ones(2, bool))
-    junction = lane_intent(steer, changing, offset, width, lanes, lanes, ok, ruled, free, np.ones(2, bool),
-                           may_begin=np.zeros(2, bool))  # fmt: skip
+
+    def heading(may_begin: np.ndarray | None) -> np.ndarray:
+        place = RoadPlace(
+            offset, width, lanes, lanes, offset, np.full(2, 5.25), np.full(2, 33.3), may_begin=may_begin
+        )
+        wish = lane_wish(LaneWishes(steer, free, np.ones(2, bool), np.zeros(2)), place, ruled, None)
+        return lane_intent(wish, changing, place, ok, None, ruled)
+
+    open_road, junction = heading(None), heading(np.zeros(2, bool))
     assert open_road.tolist() == [1, 1] and junction.tolist() == [0, 1]
 
 
@@ -1350,14 +1421,18 @@ def test_a_car_given_back_crawling_at_sumos_sideways_speed_goes_on_to_its_lane_c
 def test_the_policy_cannot_push_a_car_closer_than_the_minimum_headway():
     car, v = CarModel(), 25.0
     gap, other = leaders_of(lead=(0, 2.0 + 1.0 * v, v))  # 1 s behind a leader at the same speed
-    args = (np.array([v]), np.array([30.0]), gap, other, np.zeros(1), np.zeros(1), np.array([0]),
-            np.zeros(1), np.array([3.5]), np.array([1]), np.array([1]), np.zeros(1), np.array([5.25]),
-            np.array([33.3]), 0.2, car)  # fmt: skip
+    args = (
+        Motion(np.array([v]), np.array([30.0]), np.zeros(1), np.zeros(1), np.array([0])),
+        RoadPlace(np.zeros(1), np.array([3.5]), np.array([1]), np.array([1]), np.zeros(1), np.array([5.25]),
+                  np.array([33.3])),
+        LaneNeighbours(gap, other),
+    )  # fmt: skip
     full_throttle = np.array([[0.0, 1.0, 0.0]])
-    assert actuate_lanes(full_throttle, *args, LaneDriving()).actuation.speed[0] <= v
-    assert actuate_lanes(full_throttle, *args, MECHANICS).actuation.speed[0] > v  # the rules off: it may
+    ruled, bare = DriverSettings(LaneDriving(), 0.2, car), DriverSettings(MECHANICS, 0.2, car)
+    assert actuate_lanes(full_throttle, *args, ruled).actuation.speed[0] <= v
+    assert actuate_lanes(full_throttle, *args, bare).actuation.speed[0] > v  # the rules off: it may
     gap[0, 0] = 2.0 + 2.0 * v  # 2 s behind: the push is the policy's
-    assert actuate_lanes(full_throttle, *args, LaneDriving()).actuation.speed[0] > v
+    assert actuate_lanes(full_throttle, *args, ruled).actuation.speed[0] > v
 
 
 def test_overtakers_pass_a_slower_leader_unasked_and_keepers_only_a_much_slower_one_when_they_ask():
@@ -1402,10 +1477,16 @@ def test_no_passing_on_the_slow_side_of_a_car_two_lanes_over():
 
 def test_an_overtaker_may_drive_above_the_limit_it_wants_to_exceed():
     car, limit = CarModel(), np.array([30.0])
-    args = (np.array([30.0]), np.array([33.0]), *NO_LEADERS, np.zeros(1), np.zeros(1), np.array([0]),
-            np.zeros(1), np.array([3.5]), np.array([0]), np.array([0]), np.zeros(1), np.array([1.75]),
-            limit, 0.2, car, MECHANICS)  # fmt: skip
-    assert 30.0 < actuate_lanes(np.array([[0.0, 1.0, 0.0]]), *args).actuation.speed[0] <= 33.0
+    out = actuate_lanes(
+        np.array([[0.0, 1.0, 0.0]]),
+        Motion(np.array([30.0]), np.array([33.0]), np.zeros(1), np.zeros(1), np.array([0])),
+        RoadPlace(
+            np.zeros(1), np.array([3.5]), np.array([0]), np.array([0]), np.zeros(1), np.array([1.75]), limit
+        ),
+        LaneNeighbours(*NO_LEADERS),
+        DriverSettings(MECHANICS, 0.2, car),
+    )
+    assert 30.0 < out.actuation.speed[0] <= 33.0
 
 
 def test_a_car_leaving_its_lane_takes_the_gap_it_falls_in_to_and_no_lane_ending_before_its_own():
@@ -1418,20 +1499,42 @@ def test_a_car_leaving_its_lane_takes_the_gap_it_falls_in_to_and_no_lane_ending_
 
     def heading(leads_on: list[float]) -> int:
         out = actuate_lanes(
-            np.array([[0.0, 0.5, 0.0]]), speed, desired, gap, other, np.zeros(1), np.zeros(1),
-            np.zeros(1, int), np.zeros(1), np.array([3.5]), np.array([2]), np.array([0]), np.array([-3.5]),
-            np.array([5.25]), np.array([33.3]), 0.2, CarModel(), ruled, lane_leads_on=np.array([leads_on]),
-        )  # fmt: skip
+            np.array([[0.0, 0.5, 0.0]]),
+            Motion(speed, desired, np.zeros(1), np.zeros(1), np.zeros(1, int)),
+            RoadPlace(
+                np.zeros(1),
+                np.array([3.5]),
+                np.array([2]),
+                np.array([0]),
+                np.array([-3.5]),
+                np.array([5.25]),
+                np.array([33.3]),
+                lane_leads_on=np.array([leads_on]),
+            ),
+            LaneNeighbours(gap, other),
+            DriverSettings(ruled, 0.2),
+        )
         return int(out.changing[0])
 
     assert heading([500.0, np.inf, -1.0]) == 1  # its lane ends: it merges into the gap beside
     held = leaders_of(lead=(0, 40.0, 22.0))
     ends_first = np.array([[np.inf, 1000.0, -1.0]])  # the fast-side lane ends 1 km on, the own goes on
     out = actuate_lanes(
-        np.array([[1.0, 0.5, 0.0]]), speed, desired, *held, np.zeros(1), np.zeros(1), np.zeros(1, int),
-        np.zeros(1), np.array([3.5]), np.array([2]), np.array([0]), np.array([-3.5]), np.array([5.25]),
-        np.array([33.3]), 0.2, CarModel(), ruled, lane_leads_on=ends_first,
-    )  # fmt: skip
+        np.array([[1.0, 0.5, 0.0]]),
+        Motion(speed, desired, np.zeros(1), np.zeros(1), np.zeros(1, int)),
+        RoadPlace(
+            np.zeros(1),
+            np.array([3.5]),
+            np.array([2]),
+            np.array([0]),
+            np.array([-3.5]),
+            np.array([5.25]),
+            np.array([33.3]),
+            lane_leads_on=ends_first,
+        ),
+        LaneNeighbours(*held),
+        DriverSettings(ruled, 0.2),
+    )
     assert out.changing[0] == 0  # not into a weave's or an exit's lane to pass
 
 

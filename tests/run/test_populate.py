@@ -26,8 +26,8 @@ from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig, popula
 from behaviors.run.population import Population
 from behaviors.run.precision import BFLOAT16_MIN_BATCH, use_bfloat16
 from behaviors.sumo.sumo_home import sumo_binary
-from behaviors.traffic.actuation import LaneDriving
 from behaviors.traffic.lanes import TRAFFIC_OBS_SIZE
+from behaviors.traffic.settings import LaneDriving
 from sumo_scenarios.osm_like import Chain, run_netconvert, write_plain
 
 

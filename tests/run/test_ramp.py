@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 from helpers import behave
 
-from behaviors.traffic.actuation import LaneDriving, lane_traffic, letting_in
+from behaviors.traffic.motives import letting_in
+from behaviors.traffic.scene import lane_traffic
+from behaviors.traffic.settings import LaneDriving
 from tests.learn.test_traffic import leaders_of
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))

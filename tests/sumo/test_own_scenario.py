@@ -27,8 +27,8 @@ from behaviors.sumo.scenario_config import read_sumocfg, share_draw
 from behaviors.sumo.sim import COLLISION_OPTIONS, SimOptions, SumoSim
 from behaviors.sumo.sumo_home import sumo_binary
 from behaviors.sumo.timing import PhaseTimer
-from behaviors.traffic.actuation import CarModel
 from behaviors.traffic.lanes import TRAFFIC_OBS_SIZE
+from behaviors.traffic.settings import CarModel
 from behaviors.traffic.styles import fixed_styles
 from sumo_scenarios import get_scenario
 

@@ -1,4 +1,4 @@
-"""Each rule of the traffic driver does its one thing, and switching it off alone (actuation.Rules)
+"""Each rule of the traffic driver does its one thing, and switching it off alone (settings.Rules)
 takes exactly that away: one test per rule, every other rule on."""
 
 from __future__ import annotations
@@ -8,7 +8,10 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 
-from behaviors.traffic.actuation import CarModel, LaneCommand, LaneDriving, LaneHabits, Rules, actuate_lanes
+from behaviors.traffic.actuation import LaneCommand, actuate_lanes
+from behaviors.traffic.limits import LANE_VETOES, LIMIT_NAMES, SPEED_BOUNDS
+from behaviors.traffic.scene import AgentStyle, LaneNeighbours, Motion, RoadPlace
+from behaviors.traffic.settings import DriverSettings, LaneDriving, LaneHabits, Rules
 from tests.learn.test_traffic import NO_LEADERS, leaders_of
 
 ALL = Rules()
@@ -28,12 +31,22 @@ def step(
 ) -> LaneCommand:
     """One actuate_lanes step of one car wanting 33 m/s in lane `lane` of three 3.5 m lanes."""
     return actuate_lanes(
-        np.array([[steer, accel, 0.0]]), np.array([speed]), np.array([33.0]), *leaders,
-        np.zeros(1), np.zeros(1), np.array([changing]), np.array([lane_offset]), np.array([3.5]),
-        np.array([2 - lane]), np.array([lane]), np.array([(lane - 1) * 3.5 + lane_offset]),
-        np.array([5.25]), np.array([33.3]), 0.2, CarModel(), LaneDriving(rules=rules),
-        lane_leads_on=np.array([leads_on]), habits=habits,
-    )  # fmt: skip
+        np.array([[steer, accel, 0.0]]),
+        Motion(np.array([speed]), np.array([33.0]), np.zeros(1), np.zeros(1), np.array([changing])),
+        RoadPlace(
+            np.array([lane_offset]),
+            np.array([3.5]),
+            np.array([2 - lane]),
+            np.array([lane]),
+            np.array([(lane - 1) * 3.5 + lane_offset]),
+            np.array([5.25]),
+            np.array([33.3]),
+            lane_leads_on=np.array([leads_on]),
+        ),
+        LaneNeighbours(*leaders),
+        DriverSettings(LaneDriving(rules=rules), 0.2),
+        AgentStyle(habits=habits),
+    )
 
 
 def without(name: str) -> Rules:
@@ -136,3 +149,13 @@ def test_no_tailgating__stops_a_push_closer_than_the_minimum_headway(gap):
     on = speed_after(step(leaders=leader, accel=1.0))
     off = speed_after(step(without("no_tailgating"), leaders=leader, accel=1.0))
     assert on < off - 0.05
+
+
+def test_each_limit_keeps_its_rules_name_and_a_step_says_whom_each_one_held():
+    rules = {f.name for f in fields(Rules)}
+    assert all(limit.rule in rules | {None} for limit in (*LANE_VETOES, *SPEED_BOUNDS))
+    into_ending = step(steer=-1.0, leads_on=(3000.0, 3000.0, 150.0))  # asks for a lane that ends soon
+    assert list(into_ending.limited) == list(LIMIT_NAMES)
+    assert [name for name, held in into_ending.limited.items() if held[0]] == ["avoid_ending_lanes"]
+    pushing = step(leaders=leaders_of(lead=(0, 25.0, 30.0)), accel=1.0)  # 0.8 s behind, full throttle
+    assert [name for name, held in pushing.limited.items() if held[0]] == ["no_tailgating"]

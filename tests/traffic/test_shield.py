@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from behaviors import make_env
-from behaviors.traffic.actuation import CarModel, actuate
+from behaviors.traffic.actuation import actuate
+from behaviors.traffic.scene import ShieldBounds
+from behaviors.traffic.settings import CarModel
 from behaviors.traffic.shield import (
     EMERGENCY_DECEL,
     SIDE_MARGIN,
@@ -100,8 +102,10 @@ def test_actuate_cuts_the_move_and_turns_the_heading_to_match_it():
         np.array([[1.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
         np.full(n, 20.0), np.array([0.05, -0.05, 0.0]), np.zeros(n), np.full(n, 5.25), np.zeros(n),
         np.full(n, 33.0), 0.2, CAR,
-        side_limit=np.array([[0.05, np.inf], [np.inf, 0.0], [np.inf, np.inf]]),
-        speed_cap=np.array([np.inf, np.inf, 18.0]),
+        ShieldBounds(
+            side_limit=np.array([[0.05, np.inf], [np.inf, 0.0], [np.inf, np.inf]]),
+            speed_cap=np.array([np.inf, np.inf, 18.0]),
+        ),
     )  # fmt: skip
     assert out.side_cut.tolist() == [True, True, False]
     np.testing.assert_allclose(out.lateral_move[:2], [0.05, 0.0])

@@ -17,8 +17,10 @@ from behaviors.learn.ddpg.checkpoint import save_checkpoint
 from behaviors.learn.ddpg.networks import Actor
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import PopulateConfig
-from behaviors.traffic.actuation import CarModel, LaneDriving, actuate_lanes
+from behaviors.traffic.actuation import actuate_lanes
 from behaviors.traffic.rewards import TrafficStep, TrafficWeights, styled_rewards
+from behaviors.traffic.scene import AgentStyle, LaneNeighbours, Motion, RoadPlace
+from behaviors.traffic.settings import DriverSettings, LaneDriving
 from behaviors.traffic.styles import (
     HEADWAY_RANGE,
     KEEPER,
@@ -48,12 +50,22 @@ def lane_step(
     if headway is None and lateral.network_chooses:
         headway = headway_of_action(np.array([accel]))
     return actuate_lanes(
-        np.array([[steer, accel, 0.0]]), np.array([speed]), np.array([33.0]), *leaders,
-        np.zeros(1), np.zeros(1),
-        np.array([changing]), np.zeros(1), np.array([3.5]), np.array([2 - lane]), np.array([lane]),
-        np.array([(lane - 1) * 3.5]), np.array([5.25]), np.array([33.3]), 0.2, CarModel(), lateral,
-        lane_leads_on=np.array([lane_leads_on]), time_headway=headway,
-    )  # fmt: skip
+        np.array([[steer, accel, 0.0]]),
+        Motion(np.array([speed]), np.array([33.0]), np.zeros(1), np.zeros(1), np.array([changing])),
+        RoadPlace(
+            np.zeros(1),
+            np.array([3.5]),
+            np.array([2 - lane]),
+            np.array([lane]),
+            np.array([(lane - 1) * 3.5]),
+            np.array([5.25]),
+            np.array([33.3]),
+            lane_leads_on=np.array([lane_leads_on]),
+        ),
+        LaneNeighbours(*leaders),
+        DriverSettings(lateral, 0.2),
+        AgentStyle(time_headway=headway),
+    )
 
 
 def test_styles_are_drawn_per_behaviour_reproducibly_and_within_their_ranges():
@@ -181,11 +193,21 @@ def test_the_styled_reward_follows_each_drivers_style():
 def test_a_driver_holds_itself_where_its_style_puts_it_in_the_lane():
     def sideways(bias: float | None) -> float:
         out = actuate_lanes(
-            np.array([[0.0, 0.6, 0.0]]), np.array([30.0]), np.array([33.0]), *NO_LEADERS, np.zeros(1),
-            np.zeros(1), np.array([0]), np.zeros(1), np.array([3.5]), np.array([1]), np.array([1]),
-            np.zeros(1), np.array([5.25]), np.array([33.3]), 0.2, CarModel(), STYLED_LANES,
-            time_headway=np.array([1.4]), lane_bias=None if bias is None else np.array([bias]),
-        )  # fmt: skip
+            np.array([[0.0, 0.6, 0.0]]),
+            Motion(np.array([30.0]), np.array([33.0]), np.zeros(1), np.zeros(1), np.array([0])),
+            RoadPlace(
+                np.zeros(1),
+                np.array([3.5]),
+                np.array([1]),
+                np.array([1]),
+                np.zeros(1),
+                np.array([5.25]),
+                np.array([33.3]),
+            ),
+            LaneNeighbours(*NO_LEADERS),
+            DriverSettings(STYLED_LANES, 0.2),
+            AgentStyle(time_headway=np.array([1.4]), lane_bias=None if bias is None else np.array([bias])),
+        )
         return float(out.actuation.lateral_speed[0])
 
     assert sideways(None) == 0.0  # on its lane's centre line, it stays there
