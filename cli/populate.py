@@ -388,7 +388,10 @@ def summary_table(summary: PopulateSummary, title: str) -> Table:
     if summary.cut_short:
         table.add_row("cut short (Ctrl-C)", f"after {summary.simulated_s:g} s")
     for key, value in summary.as_dict().items():
-        text = f"{value:,.2f}" if isinstance(value, float) else f"{value:,}"
+        if isinstance(value, str):  # a line of its own: the limits' counts
+            text = value
+        else:
+            text = f"{value:,.2f}" if isinstance(value, float) else f"{value:,}"
         if key.endswith("mean_speed"):
             text = f"{value:.1f} m/s ({3.6 * value:.0f} km/h) from SUMO"
         if key.endswith("longest_standstill_s"):

@@ -200,6 +200,8 @@ class Population:
             off_track = actuation.off_track
             self.summary.side_cuts += int(actuation.side_cut.sum())
             self.summary.speed_cuts += int(actuation.speed_cut.sum())
+            for name, count in actuation.limits.items():
+                self.summary.limits[name] = self.summary.limits.get(name, 0) + count
             self.summary.handovers = fleet.handovers
         with self.timer.phase("sumo"):
             sim.step()

@@ -42,6 +42,8 @@ class PopulateSummary:
     insert_retries: int = 0
     side_cuts: int = 0  # agent-steps whose sideways move the shield cut
     speed_cuts: int = 0  # agent-steps whose speed the shield cut
+    limits: dict[str, int] = field(default_factory=dict)  # agent-steps each named limit of the traffic
+    # driver vetoed or bound (traffic/limits.py, in its order)
     handovers: int = 0  # times SUMO's driver took an agent (exits, lane drops, one-lane roads, signals)
     scenario_cars: int = 0  # the sumocfg's passenger cars that departed
     scenario_agents: int = 0  # ... of which became agents (--share)
@@ -64,6 +66,11 @@ class PopulateSummary:
     def real_time_factor(self) -> float:
         return self.simulated_s / max(self.wall_s, 1e-9)
 
+    @property
+    def limits_line(self) -> str:
+        """`name N, ...`: the agent-steps each named limit of the traffic driver vetoed or bound."""
+        return ", ".join(f"{name} {n}" for name, n in self.limits.items())
+
     def as_dict(self) -> dict[str, Any]:
         out = {
             "vehicles": self.vehicles,
@@ -73,6 +80,7 @@ class PopulateSummary:
             "insert_retries": self.insert_retries,
             "shield_side_cuts": self.side_cuts,
             "shield_speed_cuts": self.speed_cuts,
+            **({"limits": self.limits_line} if self.limits else {}),
             "handovers_to_sumo": self.handovers,
             **(
                 {

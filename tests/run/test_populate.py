@@ -27,6 +27,7 @@ from behaviors.run.population import Population
 from behaviors.run.precision import BFLOAT16_MIN_BATCH, use_bfloat16
 from behaviors.sumo.sumo_home import sumo_binary
 from behaviors.traffic.lanes import TRAFFIC_OBS_SIZE
+from behaviors.traffic.limits import LIMIT_NAMES
 from behaviors.traffic.settings import LaneDriving
 from sumo_scenarios.osm_like import Chain, run_netconvert, write_plain
 
@@ -80,6 +81,15 @@ def test_populate_the_bundled_highway_writes_valid_fcd_with_both_behaviours(tmp_
     assert {"behave_keeper", "behave_overtaker", "behave_background"} <= types
     assert summary.vehicles >= 16 and summary.agent_steps > 0
     assert not [p for p in fcd.parent.iterdir() if p.name.startswith(".")]  # no temp files left
+
+
+@pytest.mark.sumo
+def test_the_summary_counts_what_each_limit_of_the_traffic_driver_held(tmp_path):
+    summary = populate(PopulateConfig(overtakers=3, keepers=3, background=10, duration=20.0,
+                                      fcd=tmp_path / "fcd.xml", seed=1))  # fmt: skip
+    assert list(summary.limits) == list(LIMIT_NAMES)
+    assert sum(summary.limits.values()) > 0 and max(summary.limits.values()) <= summary.agent_steps
+    assert summary.as_dict()["limits"].startswith(f"{LIMIT_NAMES[0]} ")
 
 
 @pytest.mark.sumo
