@@ -86,7 +86,7 @@ class Trainer:
         config.validate()
         self.config = config
         self.out = out
-        torch.set_num_threads(1)  # SUMO runs beside the learner: 2 threads measured 6x slower
+        torch.set_num_threads(1)  # SUMO runs beside the learner: more threads slow it (docs/history.md)
         torch.manual_seed(config.seed)
         self.env = create_env(config.env_config())
         self.obs_dim = self.env.config.obs_size

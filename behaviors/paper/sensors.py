@@ -105,7 +105,7 @@ def _track_rays_soon(
     """Track rays, started on a worker thread for big fleets; call the result to get them.
 
     numpy lets go of the GIL inside its loops, and the two ray casts are independent,
-    so on a second core they overlap (measured 1.6 -> 1.25 ms at 1,000 agents). SUMO is
+    so on a second core they overlap (docs/benchmarks.md). SUMO is
     not stepping meanwhile, so the second core is otherwise idle. Small fleets stay on
     one thread: handing work over costs more than it saves there.
     """

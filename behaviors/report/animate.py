@@ -491,8 +491,7 @@ def _centre_on(
 
 class PaletteGifWriter:
     """matplotlib's movie-writer protocol (`saving`, `grab_frame`) for GIF through Pillow, keeping
-    each frame as an 8-bit palette image: an RGBA frame list (PillowWriter's) took 0.8 MB per
-    frame at 800 x 250 pixels."""
+    each frame as an 8-bit palette image, a quarter of PillowWriter's RGBA frame (docs/history.md)."""
 
     COLOURS = 64
 

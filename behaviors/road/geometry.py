@@ -200,9 +200,9 @@ class RoadGeometry:
         (`lane_next`, up to NEXT_LANES_SEEN of them) leave the line its end points along, bending
         with its end's curvature, by more than NEXT_LANE_TOLERANCE: a lane shifted sideways through a
         junction. Sensing follows the lanes only there; elsewhere (most edges' ends) that line places
-        the cars ahead as well, and following the lanes cost populate at 1,000 agents 0.8 ms a step.
-        Worked out for a lane the first time it is asked for: a region's net has tens of thousands
-        of junction lanes, at some 70 us each."""
+        the cars ahead as well, and following the lanes everywhere costs a step's sensing more
+        (docs/benchmarks.md). Worked out for a lane the first time it is asked for: a region's net has
+        tens of thousands of junction lanes, too many to work out at set-up."""
         return self._departing(rows, ahead=True)
 
     @functools.cached_property

@@ -226,7 +226,7 @@ def edge_borders(
 
 def lane_axes(shapes: list[list[tuple[float, float]]], lengths: np.ndarray) -> dict[str, np.ndarray]:
     """Every lane's axis on one concatenated position axis, vectorised over all lanes at once
-    (a Python loop per lane took most of the set-up of a region net).
+    (a Python loop per lane would take most of the set-up of a region net).
 
     Per vertex: position (lane base + arc length), tangent (mean of the adjacent segments'
     unwrapped angles) and the curvature of the segment starting there (0 at a lane's end).

@@ -142,9 +142,9 @@ def crowded(
     """[len(rows)] bool: whether another vehicle's front lies within `clearance` of the front of each
     vehicle in `rows` (of `position` [M, 2], `speed` [M]), or within the distance in which the two
     would close up at their speed difference braking at `decel`. SUMO inserts a car where its lane is
-    free but does not see a learned car moving over from the next lane: a car put down beside one, or
-    fast just behind one that was crossing into its lane, was hit within a second, so populate puts it
-    elsewhere. Direction is not known here, so a fast car put down ahead of a slow one is moved too."""
+    free but does not see a learned car moving over from the next lane, so populate puts such a car
+    elsewhere (docs/history.md). Direction is not known here, so a fast car put down ahead of a slow
+    one is moved too."""
     if len(rows) == 0:
         return np.zeros(0, bool)
     reach = clearance + float(np.ptp(speed)) ** 2 / (2 * decel)  # the largest distance that can matter

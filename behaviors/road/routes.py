@@ -36,10 +36,9 @@ speeds before the clearance is used up (SUMO's check misses a learned car crossi
 INSERT_LANE_RUN = 400.0
 INSERT_LANE_RUN_S = 16.0
 """Nor any car in a lane that stops leading on along its route within max(this m, this s at its
-speed) while another lane of its edge goes on: an agent put down at the end of a dropping lane stood
-there and the lane queued behind it (the policies merge out over the last 350 m, not from rest), and
-so did a car of SUMO's put down 100 m before a lane drop's end at 30 m/s, an agent standing 1.7 m
-behind its body over the line, both for the 7 minutes left of the run (`make flow`, motorway4)."""
+speed) while another lane of its edge goes on: a car put down near a lane drop's end can stand there
+and block the lane for good, since the policies merge out while moving, not from rest
+(docs/flow.md, docs/history.md)."""
 
 
 @dataclass(frozen=True)

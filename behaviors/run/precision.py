@@ -26,7 +26,7 @@ def use_bfloat16(precision: str, batch: int) -> bool:
     """Whether a batch of `batch` observations goes through the actor in bfloat16.
 
     `auto` takes bfloat16 for big fleets where the CPU has it natively: it more than halves
-    the batched actor call (1,000 agents: 0.80 -> 0.32 ms measured). On real highway
+    the batched actor call (docs/history.md). On real highway
     observations it moves the steering by 0.003 (median) to 0.06 (max) of full lock, and
     throttle and brake by less (tests/run/test_populate.py): far below the exploration noise
     the policy was trained with. `float32` drives exactly as `behave evaluate` does.
@@ -37,7 +37,5 @@ def use_bfloat16(precision: str, batch: int) -> bool:
 
 
 POLICY_THREADS = 1
-"""Threads for the batched actor call. A second thread saved ~0.2 ms at 1,000 agents on an idle
-2-core machine, but cost tens of milliseconds per call when any other process kept a core busy
-(a sweep's other runs, a training): 1,000 agents 0.67 ms with 1 thread, 67 ms with 2
-(benchmarks/bench_policy_threads.py, docs/benchmarks.md)."""
+"""Threads for the batched actor call: a second thread saves little on an idle machine and costs
+tens of milliseconds per call while another process keeps a core busy (docs/benchmarks.md)."""

@@ -9,7 +9,7 @@ SUMO's parquet's columns, types and, to a few 1e-10, values. Memory: one row gro
 `ROW_GROUP_ROWS` rows at most, whatever the run's length.
 
 The reader is a process, not a thread: libsumo holds Python's GIL while SUMO writes, so a thread of
-this process could not empty the pipe SUMO waits on (a run stood still so). The process follows its
+this process could not empty the pipe SUMO waits on (docs/benchmarks.md). The process follows its
 parent: it leaves when the parent's end of its stdin closes.
 
 Where the OS has no named pipes (or the folder takes none) SUMO writes a temporary csv file beside

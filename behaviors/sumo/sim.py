@@ -293,7 +293,7 @@ class SumoSim:
         if not len(ids) == len(speed) == len(lateral):
             raise ValueError("command_agents needs one speed and one lateral move per agent")
         v = self._fast
-        # map() drives the compiled calls without a Python loop body (0.34 -> 0.27 ms at 1,000 agents)
+        # map() drives the compiled calls without a Python loop body (docs/benchmarks.md)
         deque(map(v.setSpeed, ids, speed.tolist()), maxlen=0)
         if send_move is not None:
             ids, lateral = list(compress(ids, send_move.tolist())), lateral[send_move]
@@ -414,8 +414,7 @@ class SumoSim:
         """SUMO's own driver takes these agents (default speed and lane-change modes), with the
         lateral comfort of SUMO's drivers (1 m/s^2, 1 m/s) instead of the agents' exact moves, their
         reaction at every step instead of the agents' vType's once a second (`AGENT_ACTION_STEP`), and
-        a passenger car's braking (`PASSENGER_DECEL`: braking at the policy's 7.5 there, agents were run
-        into from behind by followers who kept room for 4.5).
+        a passenger car's braking (`PASSENGER_DECEL`, what followers keep room for; docs/history.md).
         SUMO holds those limits in a copy of the car's vType, `TYPE@id`, which FCD shows while
         SUMO drives it."""
         v = self._sumo.vehicle
@@ -479,12 +478,12 @@ class SumoSim:
     def set_agent_type(self, vid: str, vtype: str) -> None:
         """An agent's vType for a car SUMO inserted with another: SUMO builds a car's lane-change
         model once, from the vType it departs with, and `setType` leaves it, so the agents' lcAccelLat
-        is set on the car itself (with a scenario's default of 1, SUMO carried out the policy's
-        sideways moves at about 0.5 m/s, and a lane change took 9-10 s instead of 5).
+        is set on the car itself (a scenario's lcAccelLat would slow the policy's sideways moves;
+        docs/history.md).
 
         First the agents' action step, with an action point in the coming step: a car SUMO was
         moving sideways carries SUMO's move on until its next action point, which the agents' type
-        alone would put up to a second away (a policy's 0.3 m became 0.54 after a hand-back)."""
+        alone would put up to a second away, so the policy's first move would overshoot."""
         v = self._sumo.vehicle
         v.setActionStepLength(vid, AGENT_ACTION_STEP, True)
         v.setType(vid, vtype)
@@ -535,9 +534,8 @@ def fast_vehicle_calls(libsumo: ModuleType) -> SimpleNamespace:
     """The per-vehicle calls of the hot path, bound to libsumo's compiled functions.
 
     libsumo's `vehicle.setSpeed` etc. are generated Python wrappers around
-    `_libsumo.vehicle_setSpeed`; calling the compiled function directly saves about
-    0.5 us per call, i.e. ~2.5 ms per step at 1,000 agents (measured). Falls back to the
-    wrappers if a libsumo build lacks them.
+    `_libsumo.vehicle_setSpeed`; calling the compiled function directly skips the wrapper's cost
+    on every call (docs/benchmarks.md). Falls back to the wrappers if a libsumo build lacks them.
     """
     compiled = getattr(libsumo, "_libsumo", None)
     calls = {name: getattr(compiled, f"vehicle_{name}", None) for name in FAST_CALLS}

@@ -55,8 +55,8 @@ class Actor(nn.Module):
 
 
 class Critic(nn.Module):
-    """Q(s, a) -> [N] with [s, a] concatenated at the input (as in TD3/SAC). The DDPG paper's
-    join-at-the-2nd-layer variant fitted the action curvature ~3x slower in our bandit test."""
+    """Q(s, a) -> [N] with [s, a] concatenated at the input (as in TD3/SAC), which learns faster
+    than the DDPG paper's join at the second layer (docs/history.md)."""
 
     def __init__(self, obs_dim: int, act_dim: int = ACT_DIM, hidden: Sequence[int] = (256, 256)) -> None:
         super().__init__()
@@ -73,8 +73,7 @@ def driving_function(actor: Actor) -> Callable[[np.ndarray], np.ndarray]:
 
     The same arithmetic as `actor(x)` (each layer is the addmm that `nn.Linear` runs), but every
     layer writes into a buffer kept between calls. `actor(x)` asks the allocator for fresh memory
-    at every layer, and at 1,000 agents that cost about 60 page faults per call, once per step
-    (in bfloat16 too: 1.43 -> 0.71 ms per call measured inside populate). Buffers grow to the
+    at every layer, page faults at every call of a big fleet (docs/benchmarks.md). Buffers grow to the
     largest fleet seen; the weights are read at each call, so the function follows the actor if
     it is trained further.
     """
