@@ -53,7 +53,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_populate.py
 	$(BIN)/python benchmarks/bench_connect.py
 
-# issue 25's rows at scale: under load, N populates at once, 10,000 agents (tens of minutes)
+# bench_populate's rows at scale: under load, N populates at once, 10,000 agents (tens of minutes)
 bench-scale: $(STAMP)
 	mkdir -p runs/bench_scale
 	$(BIN)/python benchmarks/bench_populate.py --rows 1000:200 --beside-cpu-burner --csv runs/bench_scale/burner.csv
@@ -96,14 +96,14 @@ dense: $(STAMP)
 flow: $(STAMP)
 	$(BIN)/python benchmarks/flow.py --seed $(SEED) --jobs 2
 
-# who drives (issue 43): the shipped policy against its own median action held constant and against
+# who drives: the shipped policy against its own median action held constant and against
 # --driver rules, light and dense highway, seeds 0-2 (about 20 min of one core); writes docs/ablation.md
 ablation: $(STAMP)
 	$(BIN)/python benchmarks/ablation.py --seeds 0,1,2 --duration 1800
 	$(BIN)/python benchmarks/ablation.py --seeds 0,1,2 --duration 900 --policy behaviors/pretrained/styled.pt \
 		--doc docs/ablation-styled.md --out runs/ablation-styled
 
-# like people (issue 43): a highD-like 2-lane Autobahn at 130 km/h with a fifth lorries, SUMO alone and every
+# like people: a highD-like 2-lane Autobahn at 130 km/h with a fifth lorries, SUMO alone and every
 # car learned (traffic.pt; styled.pt with its default and its highd population; and with the lorries learned
 # too), closest headways, lane changes, mean speeds and lane keeping through a 420 m window against highD's
 # published figures, seeds 0-2 (about ten minutes); docs/people.md
@@ -113,7 +113,7 @@ people: $(STAMP)
 paper: $(STAMP)
 	$(BIN)/python benchmarks/paper.py --seed $(SEED)
 
-# lane drops, ramps and long vehicles (issue 44): a user's 3-lane motorway with an on-ramp and a work zone
+# lane drops, ramps and long vehicles: a user's 3-lane motorway with an on-ramp and a work zone
 # (cars, lorries, vans) at shares 0-1 and a 3-lane one with lorries and coaches, seeds 0-1, collisions and
 # who stood 30 s (about 20 min of one core); writes its section of docs/ramp.md
 ramp: $(STAMP)

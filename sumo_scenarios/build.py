@@ -227,8 +227,8 @@ AGENT_ACTION_STEP = 1.0
 """s: how often SUMO works out its own driver's plans for an agent (its vType's actionStepLength).
 The policy drives (speed and lane-change modes 0), so those plans go unused; the policy's speed
 and sideways move still take effect at every step, between action points too (tests/learn/test_traffic.py).
-Worked out at every 0.2 s step, SUMO's car following and lane changing for 1,000 agents took a
-third of its step (26 -> 16 ms, docs/benchmarks.md). `SumoSim.hand_to_sumo` gives an agent SUMO's
+Worked out once a second instead of at every step, SUMO's own plans for the agents cost a third
+less of its step (docs/benchmarks.md). `SumoSim.hand_to_sumo` gives an agent SUMO's
 every-step reaction back. Such a vType turns SUMO to the ballistic update: see `SimOptions.ballistic`."""
 
 

@@ -41,8 +41,8 @@ RESET_TRIES = 10
 with room ahead for its episode."""
 MIN_RUN_S = 20.0
 """s: the car starts only where its route leaves room for this long at the start edge's speed limit
-(or for the whole episode, if shorter): on a user's road `reset(seed=0)` put it 8 m before the road's
-end, and the episode was over after 2 steps."""
+(or for the whole episode, if shorter), so that no episode ends a few steps after it begins
+(docs/history.md)."""
 ROOM_SHARE = 0.5
 """... but never more room than this share of the longest drive the road offers from any edge's start
 (a short road has no place with 20 s ahead)."""

@@ -1,10 +1,10 @@
-"""Like people? Per-vehicle figures through a 420 m window, beside real drivers' (issue 43's bar).
+"""Like people? Per-vehicle figures through a 420 m window, beside real drivers'.
 
 highD (Krajewski et al., ITSC 2018) films German Autobahn stretches of about 420 m from a drone and
 publishes, per vehicle, what it did while seen: its closest time headway to the leader in its lane,
 whether it changed lane, its mean speed. Its licence forbids redistributing the trajectories, so the
 reference here is built from the published per-vehicle aggregates of highD location 2 (a 2+2-lane
-Autobahn near Cologne, no speed limit, free flow; /work/shared/notes/realism.md):
+Autobahn near Cologne, no speed limit, free flow; docs/people.md):
 
 * cars (1,548): closest headway median about 1.4 s, about a third closer than 1 s, about 8% closer
   than 0.5 s; about 16% change lane; mean speed about 33 m/s (p5 ~25, p95 ~42); |offset from the lane
@@ -56,7 +56,7 @@ MIN_COVER = 0.9
 warm-up's and the run's end cut passes short)."""
 KS_LIMIT = 0.12
 SHARE_POINTS = 0.05
-"""Issue 43's "within a few points" for a share, taken as 5 percentage points."""
+"""How close a share must come to highD's: 5 percentage points."""
 OFFSET_RANGE = (0.15, 0.45)
 """m: mean |offset from the lane centre| of people holding a lane (highD's cars: about 0.3 m)."""
 CARS, LORRIES = "cars", "lorries"
@@ -332,7 +332,7 @@ JUDGED_AGAINST_SUMO = ("thw_ks", "speed_ks", "changed_lane")
 
 @dataclass(frozen=True)
 class Bar:
-    """Issue 43's like-people bar for the cars, each part met or not."""
+    """The like-people bar for the cars (`compare`), each part met or not."""
 
     parts: dict[str, bool]
 

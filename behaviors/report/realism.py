@@ -1,7 +1,7 @@
 """Realism report: how human-like the traces of an FCD are, per group of vehicles (`measure`).
 
-The measures and the naturalistic figures they are compared with are those of the project's
-realism notes (lane use, lane changes, lateral acceleration and jerk, lane-change peak and
+The measures and the naturalistic figures they are compared with are listed in docs/manual/report.md
+(lane use, lane changes, lateral acceleration and jerk, lane-change peak and
 duration, time headway and time-to-collision, passes and their side, speed, losses). Everything
 here is vectorised numpy/pandas over the whole table: a million FCD records take seconds. The
 records are read by realism_tracks.py, measured by realism_measures.py, written by

@@ -296,8 +296,8 @@ class AgentLog:
 class EndedAgents:
     """The rows of agents whose run ended, as CSV lines in an unnamed temporary file, and what the
     summary counts of them. A long run ends agents without bound (with --keep-count each one that
-    leaves comes back as a new agent: ~4,600 rows per simulated hour with 80 agents on the bundled
-    highway); kept in a list they grew populate by ~1.8 MB per simulated hour."""
+    leaves comes back as a new agent), so kept in a list they would grow populate with simulated
+    time (docs/benchmarks.md, "Long runs")."""
 
     def __init__(self) -> None:
         self._file = tempfile.TemporaryFile("w+", encoding="utf-8", newline="")  # noqa: SIM115 (closed by close())

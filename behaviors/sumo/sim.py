@@ -70,8 +70,8 @@ class SimOptions:
     agent_max_speed_lat: float | None = None
     """m/s: the agents' vTypes' maxSpeedLat in this run, the fastest sideways move their driver makes
     (None: the vTypes' own 5 m/s, the paper driver's). SUMO's cars judge a lane-changing agent's
-    reach by it: at 5 m/s it reserved room in the next lane one action step (`AGENT_ACTION_STEP`)
-    of 5 m/s further over, where the traffic driver moves at most 1.2 m/s."""
+    reach by it over one action step (`AGENT_ACTION_STEP`), so a driver that moves slower sideways
+    says so here rather than have room reserved for it that it never takes (docs/history.md)."""
     ballistic: bool = False
     """SUMO's position update: Euler (SUMO's default) unless a sumocfg asks for the ballistic one.
     Always given: SUMO turns to the ballistic update by itself once a vType sets an
