@@ -153,11 +153,6 @@ class PopulateInterrupted(KeyboardInterrupt):
         self.summary = summary
 
 
-JOINED_ENDS = ("simulation_over", "closed_by_sumo", "duration", "interrupted")
-"""How a joined run ends: the simulation had no vehicles left to run (or reached SUMO's --end), SUMO
-closed the connection (it ended, was stopped, or the network dropped it), --duration simulated, Ctrl-C."""
-
-
 def joined_agents_path(config: PopulateConfig) -> Path:
     return config.agents_csv if config.agents_csv is not None else agents_path(config.fcd)
 

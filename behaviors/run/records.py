@@ -58,7 +58,10 @@ class PopulateSummary:
     sumo: SumoCars | None = None  # SUMO's own vehicles, measured as the agents are
     phases: dict[str, float] = field(default_factory=dict)
     cut_short: bool = False  # stopped by Ctrl-C before the duration: simulated_s says how far it got
-    left_simulation: str = ""  # a joined run: how it ended (JOINED_ENDS), "" for behave's own SUMO
+    left_simulation: str = ""
+    """A joined run: how it ended ("" for behave's own SUMO): `simulation_over` (no vehicles left to run,
+    or SUMO's --end reached), `closed_by_sumo` (SUMO ended, was stopped, or the network dropped the
+    connection), `duration` (--duration simulated) or `interrupted` (Ctrl-C)."""
     handed_back: int = 0  # a joined run: agents given back to SUMO's driver when behave left
     left_note: str = ""  # a joined run: what happened at the end, one line
 
