@@ -239,8 +239,7 @@ def write_vtypes(path: Path) -> None:
     sigma 0 because the policy (not Krauss) drives, and SUMO's plans for them once a second
     (`AGENT_ACTION_STEP`). Their decel (7.5 m/s^2, the policy's full
     brake) is what SUMO's followers would keep room for, so `apparentDecel` shows them SUMO's
-    passenger car's 4.5: behind an agent SUMO's cars kept a gap twice their own, and half-learned
-    traffic carried a tenth less than either fleet alone.
+    passenger car's 4.5, and SUMO's cars follow an agent at their usual gap (docs/history.md).
     """
     agent = {
         "vClass": "passenger",

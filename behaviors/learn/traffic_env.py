@@ -59,8 +59,8 @@ braked beside a queue as if its first car were the agent's leader (README, Known
 STOP_EPISODES = 0.5
 """Share of episodes in which the traffic ahead of one agent stops in every lane of its edge and
 later moves on, so that agents queue and pull away again. Without it the policy never met a standing
-start and held its car on the brake while the car-following law under it would pull away (a queue
-discharged at 990 veh/h/lane, against 2,070 with the law alone)."""
+start and held its car on the brake while the car-following law under it would pull away
+(docs/history.md)."""
 STOP_AFTER_S = (5.0, 40.0)
 """When the traffic stops, seconds into the episode."""
 STOP_FOR_S = (5.0, 30.0)

@@ -33,8 +33,8 @@ CAR_LENGTH, CAR_WIDTH = 5.0, 1.8
 """m: a passenger car's size (SUMO's default, behave's cars'); other vehicles are drawn at their own."""
 FIGURE_WIDTH_IN, DPI = 8.0, 100
 MIN_CAR_PX = 4.0
-"""Pixels a car's length must take in the whole view, or the view follows the action (a 4.5 km road
-at 800 pixels drew cars of 0.9 px, specks)."""
+"""Pixels a car's length must take in the whole view, or the view follows the action (at 800 pixels a
+4.5 km road draws cars of 0.9 px, specks)."""
 AUTO_WINDOW_M = 250.0
 """m: the width of the view that follows the action (a car 16 px long at 800 px)."""
 CLASS_STYLES = {  # SUMO's vehicles by vClass -> (legend label, colour); other classes are SUMO cars

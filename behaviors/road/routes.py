@@ -86,8 +86,8 @@ def random_walk(
 
 ROUTE_VARIANTS = 8
 """Routes drawn per start edge, then reused. SUMO keeps every route it is given until the run
-ends: one new route per insertion (and per retry) grew populate by 0.24 MB per simulated second
-with 200 agents."""
+ends, so one new route per insertion (and per retry) would grow populate with simulated time
+(docs/history.md)."""
 
 
 class RoutePool:

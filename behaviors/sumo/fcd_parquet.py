@@ -42,7 +42,7 @@ PRECISION = 9
 (doubles in SUMO's parquet) keep nanometres. SUMO's `--precision` applies to each of its outputs."""
 ROW_GROUP_ROWS = 1 << 16
 """Rows per parquet row group (~8 MB in memory, ~3 MB on disk): the most the reader holds. The reader
-process stays near 100 MB (50 of them pyarrow's code), with 1 << 17 rows it grew to 170-210 MB."""
+process stays near 100 MB (50 of them pyarrow's code); larger groups make it grow (docs/benchmarks.md)."""
 READ_BYTES = 1 << 22
 """Bytes of csv read at a time (a pipe gives what it holds: 1 MB at most)."""
 PARSE_BYTES = 1 << 22

@@ -1,6 +1,6 @@
 """Replay rows on disk as append-only chunks, so that saving after every episode stays cheap.
 
-The whole state with a full 1e5-row buffer is 55 MB (0.25-0.5 s per save here); a trainer
+The whole state with a full 1e5-row buffer is 55 MB, too much to write after every episode; a trainer
 instead writes, after each episode, only the rows added since its last save (one chunk file
 per buffer), lists the chunks the buffers still hold in its small state file, and removes the
 chunks whose rows the ring has overwritten. A resumed run puts the listed rows back in place.
