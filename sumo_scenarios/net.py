@@ -1,5 +1,5 @@
 """The one SUMO net reader: one streaming pass of the standard library's C parser over a .net.xml
-(or .net.xml.gz). sumolib's object model took minutes on region nets; this keeps memory flat.
+(or .net.xml.gz). sumolib's object model takes minutes on region nets; this keeps memory flat.
 
 `net_elements` is the parse; `read_net` (road geometry, scenario facts) and `lane_widths`
 (plots) are built on it, and nothing else in behave reads a net.
