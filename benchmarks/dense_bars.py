@@ -287,7 +287,7 @@ def main() -> None:
     print(text)
     if not args.quick:
         doc = (
-            "# Dense traffic, large samples: issue 23's bars on safety, lanes and headways\n\n"
+            "# Dense traffic, large samples: the bars on safety, lanes and headways\n\n"
             f"`python benchmarks/dense_bars.py --policy {args.policy} --seed {args.seed}` (`make dense`): "
             "each setting once with the shield on and once off, agents re-inserted as they leave "
             "(`--keep-count`); measured on populate's FCD by `behave report`'s realism measures "

@@ -399,7 +399,7 @@ def document(
     runs: list[Run], flow_rows: pd.DataFrame, queue_rows: pd.DataFrame, args: argparse.Namespace, wall: float
 ) -> str:
     lines = [
-        "# Flow against density: SUMO alone and learned fleets (issue 23)",
+        "# Flow against density: SUMO alone and learned fleets",
         "",
         f"Measured on commit {commit()} with `python benchmarks/flow.py --seed {args.seed} --jobs {args.jobs}"
         f"{'' if args.policy == DEFAULT_POLICY else f' --policy {args.policy} --doc {args.doc}'}"
@@ -419,8 +419,8 @@ def document(
         "50% learned and 100% learned (keepers:overtakers 1:1). `agents stood >= 30 s`: agents "
         "that stood (< 0.1 m/s) 30 s or more at a time in the measured window; `motorway4` has "
         "a lane drop (a bottleneck), so its standing agents are not held against the bar, and its "
-        "flow is held against SUMO's through the same bottleneck. Bars "
-        "(issue 23): at 20 veh/lane-km a learned fleet's flow >= 90% of SUMO alone; at 27 >= "
+        "flow is held against SUMO's through the same bottleneck. Bars: "
+        "at 20 veh/lane-km a learned fleet's flow >= 90% of SUMO alone; at 27 >= "
         "1,800 veh/h/lane; no agent standing 30 s where no bottleneck stops traffic.",
         "",
         "Roads: `highway` the bundled straight 3-lane, 3 km, 3.5 m lanes; `curved4` a curved 4-lane "
@@ -456,7 +456,7 @@ def document(
             f"queues behind. Discharge flow: the queued cars (standing behind the blockers at "
             f"{RELEASE_S:g} s) passing a point {DETECTOR_M:g} m downstream, the first "
             f"{STARTUP_PER_LANE} per lane left out (start-up), (n - 1) / (last - first passage) per "
-            f"lane; the run ends at {DISCHARGE_END_S:g} s. Bar (issue 23): >= 1,700 veh/h/lane.",
+            f"lane; the run ends at {DISCHARGE_END_S:g} s. Bar: >= 1,700 veh/h/lane.",
             "",
             *discharge_table(queue_rows),
             "",

@@ -267,8 +267,8 @@ def main() -> None:
         "PS-DDPG with the defaults of `behave train` unless the command says otherwise. "
         "Files hold actor weights only (`behave` never needs the critic to drive). "
         "Paper policies: the bundled 3 km, 3-lane ring, 1000 steps of 0.2 s per episode. Traffic policy: "
-        "the five training roads among SUMO's cars, 500 steps per episode; its realism against the bars "
-        "of issue 11 is in docs/realism.md (`make realism`).\n\n"
+        "the five training roads among SUMO's cars, 500 steps per episode; its realism against the driving "
+        "bars is in docs/realism.md (`make realism`).\n\n"
     )
     atomic_write_text(PRETRAINED / "MODEL_CARD.md", header + "\n".join(sections))
     atomic_write_text(args.runs / "evaluation.json", json.dumps(results, indent=2))

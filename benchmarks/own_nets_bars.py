@@ -255,7 +255,7 @@ def main() -> None:
     if args.policy != DEFAULT_POLICY:
         command += f" --policy {args.policy}"
     doc = (
-        "# The shipped policy on nets nobody here drew (issue 12's bars)\n\n"
+        "# The shipped policy on nets nobody here drew\n\n"
         f"`{command}` (`make own-nets`), measured at commit {measured}.\n\n"
         f"Each net runs as a user's scenario with its own demand: `behave populate --sumocfg NET.sumocfg "
         f"--share {SHARE:g} --no-shield --duration {args.duration:g} --seed S` with the bundled traffic "
@@ -272,7 +272,7 @@ def main() -> None:
         "table; SUMO's vehicles: their FCD rows). Reaching the route end: of the vehicles that departed "
         "in the first half of the run, the share that arrived before it ended. `met`: the bar judged on all "
         "runs pooled (losses over all agent-hours, shares over all cohorts).\n\n" + text + "\n\n"
-        "How the agents drive there: issue 11's driving bars, measured by `behave report` on the same "
+        "How the agents drive there: the driving bars, measured by `behave report` on the same "
         "runs' FCD (each car's first 10 s left out; keepers and overtakers as the share drew them). On "
         "the left-hand net the overtaking side is the right, and the rightmost-lane row reads the "
         "outer (slow) lane, lane 0. `met`: every run meets the bar.\n\n" + driving_text + "\n"

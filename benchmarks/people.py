@@ -371,7 +371,7 @@ def main() -> None:
         tables += [f"### {group.capitalize()}, seeds {args.seeds} pooled", group_table(group, pooled, labels)]
     text = "\n\n".join([
         *tables,
-        "### Issue 43's like-people bar", bar_table(by_variant, labels),
+        "### The like-people bar", bar_table(by_variant, labels),
         "### Per run", per_seed_table(by_variant, labels),
     ])  # fmt: skip
     print(text)
@@ -393,7 +393,7 @@ def main() -> None:
         "1/6), a distribution fitted to published figures, not the data; mean speeds are compared in shape",
         "only, each car's mean speed over the group's median against N(33.5, 5.17) over its median (p5 25,",
         "p95 42; highD's road has no limit, ours 130 km/h), the medians shown beside. Shares are judged",
-        f'within {100 * SHARE_POINTS:.0f} points (the issue\'s "a few"), distributions within KS',
+        f'within {100 * SHARE_POINTS:.0f} points, distributions within KS',
         f"{KS_LIMIT:g}; ✗ marks a figure outside. Definitions: behaviors/report/people.py.",
     ])  # fmt: skip
     doc = (

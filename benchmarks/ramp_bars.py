@@ -352,10 +352,10 @@ def main() -> None:
         f"of agents' in brackets; standing: stood {STANDING_S} s or more at a time (populate's summary);",
         "speeds: populate's means over vehicle-steps (agents: keepers' and overtakers' averaged); passed:",
         "vehicles that reached the edge after the work zone (on the straight road, its last 500 m), per hour",
-        f"of the run. The bar (issue 44): 0 collisions, 0 off-tracks, at most {BAR_STANDING} vehicles",
+        f"of the run. The bar: 0 collisions, 0 off-tracks, at most {BAR_STANDING} vehicles",
         f"standing {STANDING_S} s (SUMO alone: none). Definitions: benchmarks/ramp_bars.py.",
     ])  # fmt: skip
-    intro = f"# Lane drops, ramps and long vehicles at high shares (issue 44)\n\n{setting}\n"
+    intro = f"# Lane drops, ramps and long vehicles at high shares\n\n{setting}\n"
     section = (
         f"## {args.label}\n\n"
         f"Written by `{command}` (`make ramp`) on commit {commit()}, {now}; CPU: {cpu_model()} (`lscpu`); "

@@ -171,7 +171,7 @@ def main() -> None:
     text = bars_table(BARS, columns)
     print(text)
     doc = (
-        "# Traffic-driver policy against issue 11's bars\n\n"
+        "# Traffic-driver policy against the driving bars\n\n"
         f"`python benchmarks/traffic_bars.py --policy {args.policy} --seeds {args.seeds} "
         f"--duration {args.duration:g}`: 4 keepers + 4 overtakers re-inserted as they leave, shield off "
         "(the shield row: one run per net with it on), measured by `behave report` on populate's FCD "
