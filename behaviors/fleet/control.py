@@ -18,6 +18,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from behaviors.fleet.handover import Handover
+from behaviors.fleet.traffic_rows import TrafficRows
 from behaviors.road.geometry import RoadGeometry
 from behaviors.road.neighbours import Neighbours
 from behaviors.sumo.sim import AgentReadings, SumoSim, VehicleState
@@ -100,7 +101,7 @@ class AgentRows:
     lane_row: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # at the last read, -1 = none
     last_move: np.ndarray = field(default_factory=lambda: np.zeros(0))  # sideways, sent to SUMO; NaN = none
     shape_pos: np.ndarray = field(default_factory=lambda: np.zeros(0))  # along that lane's shape, metres
-    own: Any = None  # the driver's own per-agent rows (a dataclass of arrays), or None
+    own: TrafficRows | None = None  # the traffic driver's own per-agent rows (None: the paper driver)
 
     def take(self, mask: np.ndarray) -> AgentRows:
         """The rows where `mask` is True, of every field."""
@@ -148,12 +149,25 @@ class Sensing:
 
 
 @dataclass(frozen=True)
+class HandedRows:
+    """The fleet's rows after a step's hand-overs: who SUMO drives, and the speeds and headings the
+    agents go on from (SUMO's for the cars it drives; as SUMO moved them for those it gives back)."""
+
+    handed: np.ndarray
+    speed: np.ndarray
+    angle: np.ndarray
+
+
+@dataclass(frozen=True)
 class Observed:
-    """A driver's observation of its agents, and what it found on the way that the fleet uses."""
+    """A driver's observation of its agents, and what it found on the way that the fleet keeps:
+    the agents' place on the road, and the hand-overs with the rows they leave."""
 
     obs: np.ndarray
+    frame: RoadFrame
     near: Neighbours | None = None  # a neighbour search as wide as the shield's, if one was made
     handover: Handover | None = None  # agents SUMO takes or gives back this step
+    handed: HandedRows | None = None  # the rows after `handover` (None: unchanged)
 
 
 class Driver(Protocol):
@@ -170,12 +184,13 @@ class Driver(Protocol):
         """Each new agent's style (what `new_rows` takes), drawn for its behaviour."""
         ...
 
-    def new_rows(self, count: int, style: Any) -> Any:
+    def new_rows(self, count: int, style: Any) -> TrafficRows | None:
         """Its own per-agent rows for `count` new agents (None if it keeps none)."""
         ...
 
     def observe(self, fleet: Fleet, sim: SumoSim, sensing: Sensing, with_id: bool) -> Observed:
-        """Observations [N, obs size]; sets `fleet.rows.frame` and its own rows. Reads SUMO only."""
+        """Observations [N, obs size], the agents' road frame and hand-overs; updates its own rows
+        (`fleet.own`), never the fleet's. Reads SUMO only."""
         ...
 
     def actuate(self, fleet: Fleet, actions: np.ndarray) -> Actuation:
@@ -229,7 +244,13 @@ class Fleet:
     behaviour_id = property(lambda self: self.rows.behaviour_id)
     frame = property(lambda self: self.rows.frame)
     vehicle_rows = property(lambda self: self.rows.vehicle_rows)
-    own = property(lambda self: self.rows.own)
+
+    @property
+    def own(self) -> TrafficRows:
+        """The traffic driver's own rows (a paper-driver fleet has none)."""
+        if self.rows.own is None:
+            raise TypeError(f"the {self.driver.name} driver keeps no rows of its own")
+        return self.rows.own
 
     def add(
         self,
@@ -305,6 +326,10 @@ class Fleet:
         with self.timer.phase("sensors"):
             sensing = Sensing(vehicles, rows, readings, lane_rows, entered, reach)
             observed = self.driver.observe(self, sim, sensing, with_id)
+        self.rows.frame = observed.frame
+        if observed.handed is not None:
+            r, h = self.rows, observed.handed
+            r.handed, r.speed, r.angle = h.handed, h.speed, h.angle
         if observed.handover is not None:
             self._hand_over(sim, observed.handover)
         if self.shield:

@@ -9,19 +9,20 @@ one entry in DRIVERS.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces
 
 from behaviors.errors import BehaveError
-from behaviors.fleet.control import Fleet, Observed, Sensing, road_frame
-from behaviors.fleet.handover import SIGNAL_DISTANCE, SIGNAL_SECONDS, LaneEnds, LanePlace, decide
+from behaviors.fleet.control import Fleet, HandedRows, Observed, RoadFrame, Sensing, road_frame
+from behaviors.fleet.handover import SIGNAL_DISTANCE, SIGNAL_SECONDS, Handover, LaneEnds, LanePlace, decide
+from behaviors.fleet.traffic_rows import TrafficRows, desired_speed
 from behaviors.paper.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT, AgentFrame, observe
 from behaviors.road.neighbours import neighbours
 from behaviors.road.routes import lane_leads_on
-from behaviors.sumo.sim import SumoSim
+from behaviors.sumo.sim import AgentReadings, SumoSim
 from behaviors.traffic.actuation import Actuation, LaneCommand, actuate, actuate_lanes
 from behaviors.traffic.bodies import Bodies
 from behaviors.traffic.lanes import (
@@ -124,9 +125,7 @@ class PaperDriver:
     def observe(self, fleet: Fleet, sim: SumoSim, sensing: Sensing, with_id: bool) -> Observed:
         r, vehicles, rows = fleet.rows, sensing.vehicles, sensing.rows
         front = vehicles.position[rows]
-        r.frame = frame = road_frame(
-            fleet.geometry, sensing.readings, sensing.lane_rows, front, r.angle, fleet.car
-        )
+        frame = road_frame(fleet.geometry, sensing.readings, sensing.lane_rows, front, r.angle, fleet.car)
         centres = vehicles.position.copy()
         centres[rows] = frame.centre  # agents' centres are known exactly; others' fronts suffice
         agents = AgentFrame(
@@ -136,7 +135,8 @@ class PaperDriver:
             speed=r.speed,
             track_pos=np.clip(frame.offset / frame.half_width, -1.0, 1.0),
         )
-        return Observed(observe(agents, centres, rows, fleet.geometry, r.behaviour_id if with_id else None))
+        obs = observe(agents, centres, rows, fleet.geometry, r.behaviour_id if with_id else None)
+        return Observed(obs, frame)
 
     def actuate(self, fleet: Fleet, actions: np.ndarray) -> Actuation:
         r, f = fleet.rows, fleet.rows.frame
@@ -145,35 +145,6 @@ class PaperDriver:
             actions, r.speed, r.angle, f.offset, f.half_width, f.curvature, f.speed_limit,
             fleet.dt, fleet.car, ShieldBounds(r.side_limit, r.speed_cap),
         )  # fmt: skip
-
-
-def desired_speed(own: TrafficRows, speed_limit: np.ndarray) -> np.ndarray:
-    """[N] m/s each agent wants here: its share of the local limit, never beyond its top speed."""
-    return np.minimum(own.desired_fraction * speed_limit, own.top_speed)
-
-
-@dataclass
-class TrafficRows:
-    """The traffic driver's own per-agent rows (taken and extended with the fleet's)."""
-
-    desired_fraction: np.ndarray = field(default_factory=lambda: np.zeros(0))  # of the local speed limit
-    top_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # m/s never wanted beyond (a limiter)
-    lateral_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
-    lateral_accel: np.ndarray = field(default_factory=lambda: np.zeros(0))  # + = fast side
-    changing: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # see intent.lane_intent
-    held_for: np.ndarray = field(default_factory=lambda: np.zeros(0))  # s held up without a break
-    lane_number: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # -1 = not sensed yet
-    lane_count: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    lane_changed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # at the last sensing
-    lane_ends: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # own/fast/slow, lane coords
-    best_end: np.ndarray = field(default_factory=lambda: np.zeros(0))  # the edge's farthest-leading lane
-    one_lane_at: np.ndarray = field(default_factory=lambda: np.zeros(0))  # route's next 1-lane road
-    around: Surroundings | None = None  # leaders and followers at the last sensing
-    lanes: LaneAgents | None = None  # the agents in their lanes at the last sensing
-    asking: np.ndarray | None = None  # [N, 2] the fast-side, slow-side leader asks to come over (ditto)
-    time_headway: np.ndarray = field(default_factory=lambda: np.zeros(0))  # s, the style's (StyledDriver)
-    eagerness: np.ndarray = field(default_factory=lambda: np.zeros(0))  # to pass, the style's (StyledDriver)
-    lane_bias: np.ndarray = field(default_factory=lambda: np.zeros(0))  # m off the lane centre (ditto)
 
 
 class TrafficDriver:
@@ -257,14 +228,14 @@ class TrafficDriver:
     def observe(self, fleet: Fleet, sim: SumoSim, sensing: Sensing, with_id: bool) -> Observed:
         """The traffic observation (lanes.py); also keeps what the traffic reward and the actuation
         need, and decides the hand-overs (sent to SUMO by the fleet after sensing)."""
-        r, g, own = fleet.rows, fleet.geometry, fleet.rows.own
+        r, g, own = fleet.rows, fleet.geometry, fleet.own
         vehicles, rows, readings = sensing.vehicles, sensing.rows, sensing.readings
         bodies = Bodies(vehicles.length, vehicles.width, vehicles.length[rows], vehicles.width[rows])
         radius = search_radius(bodies.longest)
         radius = max(radius, sensing.reach) if fleet.shield else radius
         front = vehicles.position[rows]  # read only below: one gather serves the search, frame and lanes
         near = neighbours(front, vehicles.position, radius, exclude=rows)
-        r.frame = frame = road_frame(g, readings, sensing.lane_rows, front, r.angle, fleet.car)
+        frame = road_frame(g, readings, sensing.lane_rows, front, r.angle, fleet.car)
         number = g.lane_number[frame.lane_row]
         count = g.lane_num_lanes[frame.lane_row]
         normal = frame.on_normal_edge
@@ -275,13 +246,13 @@ class TrafficDriver:
         own.lane_count = np.where(normal, count, own.lane_count)
         speeds = vehicles.speed.copy()  # SUMO's; the agents' own are put in below
         self._refresh_lane_ends(fleet, sim, readings, sensing.entered)
-        handover = self._hand_over(fleet, sim, readings, count, normal, speeds[rows])
+        handover, handed = self._hand_over(fleet, sim, frame, readings, count, normal, speeds[rows])
         agents = LaneAgents(
             front=front,
             lane_row=frame.lane_row,
             shape_pos=r.shape_pos,  # the lane places just read, on the lanes' shapes
             curvature=frame.curvature,
-            speed=r.speed,
+            speed=handed.speed,
             lateral_speed=own.lateral_speed,
             changing=own.changing,
             desired_speed=desired_speed(own, frame.speed_limit),
@@ -297,10 +268,10 @@ class TrafficDriver:
             fast_side_sign=-1.0 if g.lefthand else 1.0,
         )
         own.lanes = agents
-        speeds[rows] = r.speed
+        speeds[rows] = handed.speed
         own.around = around = lane_surroundings(agents, vehicles.position, speeds, rows, g, near, bodies)
-        own.asking = self._asking_over(sim, around, r.speed, rows[~r.handed], vehicles.ids)
-        return Observed(observe_lanes(agents, around), near, handover)
+        own.asking = self._asking_over(sim, around, handed.speed, rows[~handed.handed], vehicles.ids)
+        return Observed(observe_lanes(agents, around), frame, near, handover, handed)
 
     def _asking_over(
         self, sim: SumoSim, around: Surroundings, speed: np.ndarray, driving: np.ndarray, ids: tuple[str, ...]
@@ -329,7 +300,7 @@ class TrafficDriver:
     def _refresh_lane_ends(self, fleet: Fleet, sim: SumoSim, readings: Any, entered: np.ndarray) -> None:
         """Where the own and neighbouring lanes stop leading on, asked of SUMO only for the agents
         that `entered` a new lane (a few per step), kept in lane coordinates otherwise."""
-        r, own = fleet.rows, fleet.rows.own
+        r, own = fleet.rows, fleet.own
         for i in entered.tolist():
             lane = readings.lane_id[i]
             if lane.startswith(":"):  # a junction leads on to the lane SUMO routes it to
@@ -367,37 +338,38 @@ class TrafficDriver:
     def _hand_over(
         fleet: Fleet,
         sim: SumoSim,
-        readings: Any,
+        frame: RoadFrame,
+        readings: AgentReadings,
         lanes: np.ndarray,
         normal: np.ndarray,
         sumo_speed: np.ndarray,
-    ):
-        """Decide the hand-overs (handover.py) and update the rows as if they were sent: SUMO's
-        speed for the cars it drives; those it gives back go on sideways as SUMO moved them (taken
-        back at no sideways speed, a car SUMO was moving over at 1 m/s stopped its sideways motion
-        within a step: a lane-change peak of 2 m/s^2)."""
-        r, own = fleet.rows, fleet.rows.own
+    ) -> tuple[Handover, HandedRows]:
+        """The hand-overs (handover.py) and the fleet's rows as they will be once sent: SUMO's speed
+        for the cars it drives; those it gives back go on sideways as SUMO moved them (taken back at
+        no sideways speed, a car SUMO was moving over at 1 m/s would stop its sideways motion within
+        a step, docs/history.md)."""
+        r, own = fleet.rows, fleet.own
         signal = (
             sim.signal_ahead(r.ids, np.maximum(SIGNAL_DISTANCE, SIGNAL_SECONDS * r.speed))
             if sim.has_signals
             else np.zeros(len(r.ids), bool)  # most motorway nets: no per-agent query at all
         )
-        assert r.frame is not None
-        half_room = (fleet.geometry.lane_width[r.frame.lane_row] - fleet.car.width) / 2
+        half_room = (fleet.geometry.lane_width[frame.lane_row] - fleet.car.width) / 2
         ends = LaneEnds(own.lane_ends, own.best_end, own.one_lane_at)
         place = LanePlace(
             readings.lane_pos, readings.lateral_pos, own.lane_number, lanes, half_room,
             own.lateral_speed,  # 0 where SUMO drives (`actuate`)
         )  # fmt: skip
         handover = decide(ends, place, r.handed, r.speed, normal, signal)
+        angle = r.angle
         if handover.take.any():
             taken = np.flatnonzero(handover.take)
             own.lateral_speed[taken] = sim.read_lateral_speeds([r.ids[i] for i in taken])
-            # the heading as `actuate_lanes` gives it
-            r.angle[taken] = np.arctan2(own.lateral_speed[taken], np.maximum(r.speed[taken], 0.1))
-        r.handed = (r.handed | handover.give) & ~handover.take
-        r.speed = np.where(r.handed, sumo_speed, r.speed)  # SUMO drives them: their speed is SUMO's
-        return handover
+            angle = r.angle.copy()  # the heading as `actuate_lanes` gives it
+            angle[taken] = np.arctan2(own.lateral_speed[taken], np.maximum(r.speed[taken], 0.1))
+        handed = (r.handed | handover.give) & ~handover.take
+        speed = np.where(handed, sumo_speed, r.speed)  # SUMO drives them: their speed is SUMO's
+        return handover, HandedRows(handed, speed, angle)
 
     def habits(self, lanes: LaneAgents) -> LaneHabits:
         """How the two behaviours use the lanes. Overtakers pass any leader slower than they want
@@ -427,7 +399,7 @@ class TrafficDriver:
         return f.on_normal_edge & ~entering
 
     def actuate(self, fleet: Fleet, actions: np.ndarray) -> Actuation:
-        lanes = fleet.rows.own.lanes
+        lanes = fleet.own.lanes
         assert lanes is not None
         return self._carry(fleet, self._command(fleet, actions, self.lateral, self.habits(lanes)))
 
@@ -441,7 +413,7 @@ class TrafficDriver:
         lane_bias: np.ndarray | None = None,
     ) -> LaneCommand:
         """What `actuate_lanes` makes of `actions` for the fleet as last sensed (changes no rows)."""
-        r, f, own = fleet.rows, fleet.rows.frame, fleet.rows.own
+        r, f, own = fleet.rows, fleet.rows.frame, fleet.own
         lanes, around = own.lanes, own.around
         assert f is not None and lanes is not None and around is not None
         motion = Motion(
@@ -461,7 +433,7 @@ class TrafficDriver:
     def _carry(fleet: Fleet, command: LaneCommand, held_for: bool = True) -> Actuation:
         """The command's actuation; the state it carries to the next step goes into the rows of the
         agents that drive themselves (`held_for`: the seconds held up too)."""
-        r, f, own = fleet.rows, fleet.rows.frame, fleet.rows.own
+        r, f, own = fleet.rows, fleet.rows.frame, fleet.own
         assert f is not None
         mine = ~r.handed  # SUMO drives the others: no lane change of ours goes on
         result = replace(
@@ -532,7 +504,7 @@ class StyledDriver(TrafficDriver):
 
     def observe(self, fleet: Fleet, sim: SumoSim, sensing: Sensing, with_id: bool) -> Observed:
         observed = super().observe(fleet, sim, sensing, with_id)
-        own = fleet.rows.own
+        own = fleet.own
         style = np.stack([own.time_headway / HEADWAY_RANGE[1], own.eagerness], axis=1).astype(np.float32)
         return replace(observed, obs=np.concatenate([observed.obs[:, :-1], style], axis=1))
 
@@ -551,7 +523,7 @@ class StyledDriver(TrafficDriver):
         habits and headway, would do now: the lane they head for as steer (-1, 0, +1), the style's
         headway as accel, no brake. Keeps the seconds each agent has been held up (the rules'
         patience), which the network's own actuation leaves alone."""
-        own = fleet.rows.own
+        own = fleet.own
         n = len(own.eagerness)
         habits = self.teacher_habits(own.eagerness)
         neutral = np.tile(np.array([0.0, 0.5, 0.0]), (n, 1))  # the law as it is: no push, no brake
@@ -562,7 +534,7 @@ class StyledDriver(TrafficDriver):
 
     def actuate(self, fleet: Fleet, actions: np.ndarray) -> Actuation:
         headway = headway_of_action(actions[:, 1])
-        command = self._command(fleet, actions, self.lateral, None, headway, fleet.rows.own.lane_bias)
+        command = self._command(fleet, actions, self.lateral, None, headway, fleet.own.lane_bias)
         return self._carry(fleet, command, held_for=False)
 
 

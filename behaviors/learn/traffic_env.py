@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from behaviors.errors import BehaveError
-from behaviors.fleet.drivers import TrafficDriver, desired_speed
+from behaviors.fleet.drivers import TrafficDriver
+from behaviors.fleet.traffic_rows import desired_speed
 from behaviors.learn.env_core import (
     BACKGROUND_TYPE,
     KEEPER_TYPE,

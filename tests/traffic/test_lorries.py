@@ -12,7 +12,7 @@ import pytest
 from helpers import behave
 
 from behaviors.errors import BehaveError
-from behaviors.fleet.drivers import TrafficRows, desired_speed
+from behaviors.fleet.traffic_rows import TrafficRows, desired_speed
 from behaviors.report.export import read_fcd
 from behaviors.traffic.bodies import Bodies
 from behaviors.traffic.lanes import surroundings
