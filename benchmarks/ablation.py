@@ -1,4 +1,4 @@
-"""Who drives, the network or the rules? Issue 43's ablation (`make ablation`, writes docs/ablation.md).
+"""Who drives, the network or the rules? An ablation (`make ablation`, writes docs/ablation.md).
 
 On the bundled highway in light and in dense traffic (benchmarks/dense_bars.py's "highway light" and
 "highway dense": 30 + 30 and 100 + 100 agents among 20 and 60 SUMO cars, re-inserted as they leave,
@@ -13,7 +13,7 @@ the shield on as users run it), for each seed:
 
 Each run's FCD is measured by `behave report`'s realism measures (each car's first 10 s left out).
 Per behaviour: mean speed, lane changes per km, passes per km, median time headway and the share of
-time in the rightmost lane, with their seed noise (sample std over seeds). Issue 43's bar: at least
+time in the rightmost lane, with their seed noise (sample std over seeds). The bar: at least
 3 of these 10 figures move between (a) and (b) by more than 3x their seed noise, in light and in
 dense traffic; and without the network ((b), (c)) the keepers' and overtakers' gap in lane changes
 per km falls under 30% of the learned one.
@@ -50,7 +50,7 @@ from behaviors.traffic.lanes import TRAFFIC_SLICES
 class Figure:
     key: str  # the realism report's row
     label: str
-    floor: float  # issue 43's seed noise for it: the noise counted is at least this
+    floor: float  # the bar's seed noise for it: the noise counted is at least this
     percent: bool = False
 
 
@@ -93,7 +93,7 @@ def seed_noise(a: Sequence[float], b: Sequence[float]) -> float:
 
 def moves(delta: float, noise: float, floor: float = 0.0) -> bool:
     """Whether a change `delta` is more than TIMES_NOISE x the noise, the noise counted as at least
-    `floor` (issue 43's figure for it); an unknown change or noise moves nothing."""
+    `floor` (the bar's figure for it); an unknown change or noise moves nothing."""
     if math.isnan(delta) or (math.isnan(noise) and floor <= 0):
         return False
     counted = floor if math.isnan(noise) else max(noise, floor)
@@ -362,7 +362,7 @@ def main() -> None:
         f"### What {name} did in (a)", actions_table(results),
         "### The figures, per traffic and behaviour",
         *(figures_table(t, results[t], verdicts[t]) for t in results),
-        "### Issue 43's bar: the network makes the behaviour", bars_table(verdicts),
+        "### The bar: the network makes the behaviour", bars_table(verdicts),
     ])  # fmt: skip
     print(text)
     light, dense = (setting(t) for t in TRAFFIC)
@@ -382,7 +382,7 @@ def main() -> None:
         f"the constant action {RULES_ACTION}). Figures: `behave report`'s realism measures on each run's "
         "FCD (each car's first 10 s left out), mean ± sample std over seeds. A figure moves when "
         f"|(b) - (a)| > {TIMES_NOISE:g} x its seed noise, the pooled std of (a) and (b) over seeds, counted "
-        "as at least issue 43's figure for it (the floor in brackets).\n\n" + text + "\n"
+        "as at least the bar's figure for it (the floor in brackets).\n\n" + text + "\n"
     )
     write_measured_doc(args.doc, doc)
     print(f"wrote {args.doc}")

@@ -1,5 +1,5 @@
 """The batched actor call of `behave populate` with 1 and 2 torch threads, with and without a
-CPU-bound process beside it (issue 25: populate that degrades gracefully under load).
+CPU-bound process beside it: does populate degrade gracefully under load?
 
 One run measures every setting in turn, round after round (the machine's speed drifts within
 minutes, so ratios are taken within a round): for each round, without and then with a busy

@@ -15,7 +15,7 @@ Each run warms up (at least 20 steps, then on until every vehicle is in, within 
 before timing. The network is a long straight highway (3 lanes unless --lanes) built into a temp
 dir with the project's own builder (the bundled one holds ~600 cars).
 
-Issue 25's rows at scale (none of them runs by default):
+Rows at scale (none of them runs by default):
 - `--beside-cpu-burner`: the same three runs, with a process spinning on one core beside them; it
   runs in blocks of --block steps taking turns with blocks where it is paused (SIGSTOP), so idle
   and loaded steps alternate within the same runs and the machine's drift cannot bias their ratio
@@ -71,7 +71,7 @@ STEP_LENGTH = 0.2
 PHASES = ("read", "sensors", "shield", "policy", "actuation", "sumo")
 TARGET_RATIO_1000 = 1.3
 SCALE_AGENTS = 10_000
-TARGET_RATIO_SCALE = 1.3  # an aim, not a bar: issue 25 asks to say what bounds it if missed
+TARGET_RATIO_SCALE = 1.3  # an aim, not a bar: if missed, the doc says what bounds it
 TARGET_BURNER = 1.2  # populate's ms/step with a CPU-bound process beside it / idle
 TARGET_PARALLEL = 1.3  # each of N populates at once / the same populate alone
 IDLE = "idle"

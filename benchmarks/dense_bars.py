@@ -1,4 +1,4 @@
-"""Issue 23's bars on safety, lane keeping, lane changes, headways and keeping right, over large samples.
+"""Bars on safety, lane keeping, lane changes, headways and keeping right, over large samples.
 
 Runs `behave populate` (through the library) in light and dense traffic on the bundled highway and on
 the curved motorway no policy trains on, with the shield on (as users run it) and off (the bare

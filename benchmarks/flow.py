@@ -1,4 +1,4 @@
-"""Issue 23's capacity bars: flow and mean speed against density, SUMO alone against learned fleets.
+"""Capacity bars: flow and mean speed against density, SUMO alone against learned fleets.
 
 For each road and target density (vehicles per lane-km of its multi-lane edges) three fleets of
 the same size, held by `--keep-count`: SUMO's own cars alone, 50% learned and 100% learned
@@ -222,7 +222,7 @@ def run_one(run: Run) -> dict:
 
 def agents_headways(df: pd.DataFrame, net: Path) -> dict:
     """The learned agents' (keepers and overtakers pooled) median time headway and share of
-    following time below THW_LIMIT, by the realism report's rules (issue 23's headway bar)."""
+    following time below THW_LIMIT, by the realism report's rules (the headway bar)."""
     follow = headways(prepare(df, read_lanes(net)))
     agents = follow.loc[follow["group"].isin(AGENT_GROUPS), "thw"]
     if agents.empty:
@@ -304,7 +304,7 @@ def flow_table(rows: pd.DataFrame) -> list[str]:
 
 
 def bar_mark(r: pd.Series, ratio: float) -> str:
-    """Issue 23's capacity bars for a learned fleet's row (bottleneck-free roads: standing)."""
+    """The capacity bars for a learned fleet's row (bottleneck-free roads: standing)."""
     if r["fleet"] == "SUMO alone":
         return "-"
     marks = []

@@ -1,4 +1,4 @@
-"""Issue 12's bars on motorway nets nobody here drew, with the shipped policy and the nets' own demand.
+"""Bars on motorway nets nobody here drew, with the shipped policy and the nets' own demand.
 
 Nets: A10KW (the SUMO wheel's OSM net near Berlin with its `osm.passenger_mw.rou.xml` demand) and
 the OSM-like nets of `sumo_scenarios.osm_like` (netconvert from plain XML: a 3-lane motorway whose
@@ -9,8 +9,8 @@ Each net is run as a user's scenario: `behave populate --sumocfg NET.sumocfg --s
 policy. Measured per run from the summary, the per-agent table and the FCD: losses per
 agent-hour, agents and SUMO's cars standing still for 30 s or more, the share of vehicles that
 departed in the run's first half and reached the end of their route, handovers to SUMO. A
-second table holds issue 11's driving bars (`behave report` on each run's FCD), so that the
-left-hand copy is compared with its keep-right original: there passes belong on the right.
+second table holds benchmarks/traffic_bars.py's driving bars (`behave report` on each run's FCD),
+so that the left-hand copy is compared with its keep-right original: there passes belong on the right.
 Prints the tables and writes them to docs/own_nets.md with the commit measured.
 
     python benchmarks/own_nets_bars.py --seeds 0,1 --duration 300

@@ -1,4 +1,4 @@
-"""Like people? Issue 43's bar on a highD-like road (`make people`, writes docs/people.md).
+"""Like people? The bar on a highD-like road (`make people`, writes docs/people.md).
 
 Builds, with netconvert from plain XML, a straight 2-lane motorway (3.75 m lanes, 130 km/h = 36.1 m/s,
 3 km, one carriageway) and its demand: passenger cars (a vType with SUMO's defaults: Krauss, sigma

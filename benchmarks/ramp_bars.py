@@ -1,4 +1,4 @@
-"""Issue 44's first bar on a user's own roads (`make ramp`, writes docs/ramp.md).
+"""A bar on a user's own roads (`make ramp`, writes docs/ramp.md).
 
 Builds, with netconvert from plain XML as a SUMO user would in an afternoon, two scenarios:
 
@@ -18,7 +18,7 @@ track, agents and SUMO's vehicles that stood 30 s or more at a time, the longest
 speeds (populate's: agents, SUMO's vehicles), and the vehicles that passed the work zone (reached the
 edge after it; on `lorries` the road's last 500 m) per hour.
 
-Issue 44's bar: 0 collisions, 0 off-tracks, no more than 2 agents or SUMO vehicles standing 30 s at
+The bar: 0 collisions, 0 off-tracks, no more than 2 agents or SUMO vehicles standing 30 s at
 shares 0.5, 0.7 and 1.0 on `ramp` and 1.0 on `lorries`; SUMO alone: none.
 
     python benchmarks/ramp_bars.py [--seeds 0,1] [--shares 0,0.5,0.7,1] [--duration 900]

@@ -1,4 +1,4 @@
-"""Memory of long `behave populate` runs (issue 26): does the process grow with simulated time?
+"""Memory of long `behave populate` runs: does the process grow with simulated time?
 
 Each case runs `behaviors.run.populate.populate` twice, each in a fresh process: with learned agents
 among `behave_background` cars (`--keep-count`, FCD on: what `behave populate` runs), and SUMO
@@ -9,7 +9,7 @@ least-squares slope of RSS against simulated time after the first `--warmup` sim
 (10 minutes), in MB per simulated hour.
 
 Cases (`--cases`, comma-separated):
-  light          the bundled 3 km highway, 80 agents + 20 SUMO cars, 1 h (issue 26's run, FCD xml)
+  light          the bundled 3 km highway, 80 agents + 20 SUMO cars, 1 h (FCD xml)
   dense          the bundled highway, 150 agents + 150 SUMO cars (33 cars per lane-km), 1 h
   light-parquet  as light, 2 h, FCD in parquet: SUMO writes csv into a pipe, behaviors/sumo/fcd_parquet.py
                  writes the row groups (SUMO's own parquet writer grew 100-260 MB per simulated hour)
@@ -69,7 +69,7 @@ class Case:
 
 
 CASES = {
-    "light": Case("light", 80, 20, 1.0, note="issue 26's run"),
+    "light": Case("light", 80, 20, 1.0, note="1 simulated hour"),
     "dense": Case("dense", 150, 150, 1.0, note="33 cars per lane-km"),
     "light-parquet": Case("light-parquet", 80, 20, 2.0, fcd="parquet", note="parquet FCD (fcd_parquet.py)"),
     "day": Case("day", 20, 20, 24.0, road_km=30.0, note="a simulated day"),

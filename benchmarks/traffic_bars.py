@@ -1,4 +1,4 @@
-"""Issue 11's bars for a traffic-driver policy, measured on populate's FCD with the realism report.
+"""The bars for a traffic-driver policy, measured on populate's FCD with the realism report.
 
 For each net (the bundled highway with 20 SUMO cars, and the motorway the policies never train
 on, with its own flows from the main road and an on-ramp) and each seed: `behave populate` with

@@ -123,7 +123,7 @@ def test_make_ablation_runs_end_to_end_at_a_tiny_duration(tmp_path):
     assert text.startswith("# Who drives")
     command = "`python benchmarks/ablation.py --seeds 0,1 --duration 14 --policy"
     assert f"Written by `make ablation` ({command}" in text
-    assert "CPU: " in text and "Issue 43's bar" in text
+    assert "CPU: " in text and "The bar: the network makes the behaviour" in text
     for traffic in ("light", "dense"):
         recorded = np.load(tmp_path / "runs" / traffic / "policy" / "s0" / "actions.npz")
         assert (
