@@ -109,7 +109,7 @@ class Move:
     rules: float
     delta: float  # median - policy
     noise: float  # seed_noise of (a) and (b)
-    moved: bool  # beyond 3x max(noise, the floor): the bar
+    moved: bool  # beyond 3x max(noise, the bar's floor): the bar
     moved_measured: bool  # beyond 3x the measured noise alone
 
 
@@ -294,7 +294,7 @@ def bars_table(verdicts: dict[str, Verdict]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     moved = [v.moved for v in verdicts.values()]
     lines.append("| " + " | ".join([
-        f"figures moved from (a) to (b) by > {TIMES_NOISE:g}x max(seed noise, issue's floor), of "
+        f"figures moved from (a) to (b) by > {TIMES_NOISE:g}x max(seed noise, the bar's floor), of "
         f"{len(GROUPS) * len(FIGURES)}", f">= {MOVES_NEEDED}", *(str(m) for m in moved),
         "yes" if all(m >= MOVES_NEEDED for m in moved) else "no",
     ]) + " |")  # fmt: skip

@@ -36,7 +36,7 @@ WARMUP_STEPS = 20
 SPACING_M = 40.0
 LANES = 3
 RUN_AHEAD_M = 2500.0  # road beyond the last car: nobody reaches the end within warm-up and timing
-TARGET_RATIO_100 = 2.0  # the aim: --connect at most 2x libsumo at 100 agents
+TARGET_RATIO_100 = 2.0  # the aim: --connect at most 2x libsumo at 100 agents
 
 
 def build(folder: Path, cars: int) -> Path:

@@ -1,4 +1,4 @@
-"""Issue 24, a newcomer's first hour: what `make run` installs, names where paths are taken, the small
+"""A newcomer's first hour: what `make run` installs, names where paths are taken, the small
 things a user meets first (`--version`, `policy list`, LICENSE, py.typed), errors before work."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Faults of training and of the env found as a new user would (issue 10): real SUMO, real signals."""
+"""Faults of training and of the env found as a new user would: real SUMO, real signals."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """`behave animate` follows the action on a long road, stops with the vehicle it follows, and draws
-vehicles at their vType's size and class (issue 44, item 9). Hand-written FCDs: no SUMO run."""
+vehicles at their vType's size and class. Hand-written FCDs: no SUMO run."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""What behave prints and writes reads clean (issue 44, item 9): rounded JSON, report text without
+"""What behave prints and writes reads clean: rounded JSON, report text without
 `infx`/`nanx`, the motorway's lanes as they are, a quiet `pip install`, sweeps without Ray's token
 note."""
 

@@ -1,5 +1,5 @@
-"""IPG export keeps each vehicle's rows together under its id; GPX times are ISO dates (issue 44,
-item 9). A small hand-written FCD: no SUMO run."""
+"""IPG export keeps each vehicle's rows together under its id; GPX times are ISO dates.
+A small hand-written FCD: no SUMO run."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""`behave plot` draws by road position on a net without kilometrage (issue 44, item 9): a jam is at
+"""`behave plot` draws by road position on a net without kilometrage: a jam is at
 one height whichever place its cars came from. The bundled motorway's edges carry no kilometrage, so
 SUMO's FCD `distance` restarts on every edge and plot fell back to the distance since insertion."""
 

@@ -1,4 +1,4 @@
-"""bench_populate's options at scale (issue 25): the pure parts (row and option parsing, the
+"""bench_populate's options at scale: the pure parts (row and option parsing, the
 alternating blocks, ratios against the bars, the table's columns, peak memory, the warm-up's wait
 for every vehicle) and the CPU burner starting, pausing and never outliving its `with` block.
 Nothing here times anything: the measurements are benchmarks/bench_populate.py's own."""

@@ -1,5 +1,5 @@
 """`behave evaluate --net/--sumocfg`, evaluate tables that count the agents that started, and the Gym
-env that never starts its car where its episode cannot run (issue 44, item 6)."""
+env that never starts its car where its episode cannot run."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Faults during a run (issue 44, item 8): SUMO failing mid-run, a Ray worker dying mid-sweep, a full
+"""Faults during a run: SUMO failing mid-run, a Ray worker dying mid-sweep, a full
 disk during a sweep. Real SUMO, real Ray workers killed by signal, a real (tmpfs) full disk.
 """
 

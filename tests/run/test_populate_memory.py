@@ -1,4 +1,4 @@
-"""populate's own structures stay bounded on long runs (issue 26): the rows of agents whose run
+"""populate's own structures stay bounded on long runs: the rows of agents whose run
 ended go to a temporary file, not a list that grows with the run. Long runs: benchmarks/soak.py."""
 
 from __future__ import annotations

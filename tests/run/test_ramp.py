@@ -1,4 +1,4 @@
-"""Lane drops at any share (issue 44, item 2): a car waiting at the end of a lane that ends is let in,
+"""Lane drops at any share: a car waiting at the end of a lane that ends is let in,
 zip fashion, by the through lane's agents, and nobody stands at a work zone's lane drop.
 
 The scenario is `make ramp`'s (benchmarks/ramp_bars.py): a 3-lane motorway built by netconvert from

@@ -1,5 +1,5 @@
 """`--share`: SUMO's cars drive exactly as in the plain SUMO run until they interact, with agents on
-the same road (issue 12: "the rest drive exactly as in the plain SUMO run until they interact").
+the same road.
 
 An interaction spreads: a car is touched from the first step it is within INTERACTION_RANGE of an
 agent or of a car touched before; every row of a car before that step must equal the plain run's.

@@ -1,4 +1,4 @@
-"""`behave sweep` (issue 25): a grid of populate runs on Ray, one row per run, resumable.
+"""`behave sweep`: a grid of populate runs on Ray, one row per run, resumable.
 
 One sweep (share {0, 0.25, 0.5} x seeds {0, 1} on a user's sumocfg, 2 workers) is shared by the
 tests: before it, one point is run alone (its row written as a finished run's) and another is left

@@ -1,5 +1,5 @@
-"""`behave populate --connect`: behave joins a SUMO another program runs, as one more TraCI client
-(issue 45). The bar: `sumo --remote-port P --num-clients 2`, a user's TraCI script stepping it to
+"""`behave populate --connect`: behave joins a SUMO another program runs, as one more TraCI client.
+The bar: `sumo --remote-port P --num-clients 2`, a user's TraCI script stepping it to
 the end, and behave beside them; all three end cleanly, SUMO's own FCD holds the learned vehicles,
 nobody is lost. And leaving early (Ctrl-C, --duration) hands the agents back and leaves SUMO running."""
 

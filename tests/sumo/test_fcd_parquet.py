@@ -1,4 +1,4 @@
-"""Parquet FCD with flat memory (issue 44, item 7): SUMO writes its csv FCD into a named pipe and
+"""Parquet FCD with flat memory: SUMO writes its csv FCD into a named pipe and
 behaviors/sumo/fcd_parquet.py writes parquet row groups from it as the run goes. SUMO's own parquet writer
 kept the whole trace in memory until the end (~270 MB per simulated hour, docs/benchmarks.md); the
 file must stay what SUMO's was: the same columns, types and (within float32) values.

@@ -1,4 +1,4 @@
-"""A user's scenario runs as `sumo -c` runs it (issue 44, items 3-5): its step, end and lateral
+"""A user's scenario runs as `sumo -c` runs it: its step, end and lateral
 resolution hold, or one line says what behave changed and why; `--sumocfg` without `--share` is
 refused; the summary counts the scenario's vehicles; a sweep writes every output the scenario names
 into each run's own folder and never beside the scenario."""
@@ -180,7 +180,7 @@ def test_sumocfg_without_share_is_refused_in_one_line(tmp_path):
 
 
 def test_outputs_go_where_asked_with_their_places_kept_and_the_scenario_untouched(tmp_path):
-    from behaviors.sumo.scenario_config import redirect_outputs  # new with issue 44
+    from behaviors.sumo.scenario_config import redirect_outputs
 
     cfg = road_scenario(tmp_path / "scenario", options=OUTPUTS)
     (tmp_path / "elsewhere").mkdir()
