@@ -375,10 +375,8 @@ class TrafficDriver:
         """How the two behaviours use the lanes. Overtakers pass any leader slower than they want
         and go back right after a pass, wherever they are, as the law asks. Keepers keep the lane
         they are in, as lane keepers do: they pass only a much slower leader that has held them up
-        a while, and move right only where their lane ends or their route asks. Keepers that also
-        left the fast-most lane of the road unasked (the law's keep-right) changed lanes 0.16-0.31
-        times per km on a 2-lane road whose demand departs half its cars in the left lane, one
-        move per 1.5-3 km trip (`make own-nets`, carriageway2)."""
+        a while, and move right only where their lane ends or their route asks (keepers that also
+        kept right unasked changed lanes far more than lane keepers do: docs/history.md)."""
         overtaker = lanes.behaviour_id > 0.5
         ruled = self.lateral
         margin = np.where(overtaker, ruled.pass_margin, ruled.keeper_pass_margin)

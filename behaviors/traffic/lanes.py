@@ -298,8 +298,8 @@ def surroundings(
             k = np.flatnonzero((fast_edge > side - 0.5) & (slow_edge < side + 0.5))
             if side == 0:
                 # a car standing alongside with its body over the line and room to drive past it
-                # leads nobody: at a lane drop's end, one waiting to merge and an agent beside it
-                # that stood for it held each other up for two minutes
+                # leads nobody: else, at a lane drop's end, it and an agent waiting beside it
+                # would hold each other up
                 standing = (distance[k] <= 0) & (speeds[m[k]] < STANDSTILL_SPEED)
                 if standing.any():
                     s = k[standing]

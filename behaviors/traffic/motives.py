@@ -33,8 +33,8 @@ def falling_in(traffic: LaneTraffic, waiting: np.ndarray, lateral: LaneDriving) 
     """[N] the acceleration of a car that must leave its ending lane (`waiting` [N]: +1 to the fast
     side, -1 to the slow side, 0 not waiting) and has no gap yet: it falls in behind the nearest car
     ahead of or alongside it in that lane, as the car the through lane lets in does, braking no harder
-    than `safe_decel` (+inf where it is not waiting). Without this a car matched its speed to the
-    platoon beside it and reached the end of its lane still alongside, where it stood."""
+    than `safe_decel` (+inf where it is not waiting): matching the speed of the platoon beside it, a
+    car would reach the end of its lane still alongside."""
     t = traffic
     rows = np.arange(len(t.speed))
     column = np.where(waiting > 0, 2, 4)

@@ -107,7 +107,7 @@ def surroundings(
     for side, mask in ((0, beside & (left > 0)), (1, beside & (left < 0))):
         np.minimum.at(room[:, side], q[mask], side_gap[mask])
     # cars ahead in the agent's way; not one beside it with room to pass, which the side limit keeps
-    # clear (capped to the speed of a car that stood beside it, an agent stood for good)
+    # clear (capped to the speed of a car standing beside it, an agent would stand for good)
     passable = beside & (side_gap >= PASSING_ROOM)
     path = np.flatnonzero(close & (side_gap < PATH_MARGIN) & (ahead > 0) & ~passable)
     q, m, gap = q[path], m[path], ahead[path] - other_length[path]

@@ -21,11 +21,9 @@ from behaviors.errors import BehaveError
 
 DESIRED_SPEED = {0.0: (0.85, 1.0), 1.0: (1.02, 1.12)}
 """Desired speed as a fraction of the limit, drawn per agent: keepers (0) and overtakers (1). Drivers
-want about the limit (SUMO's cars: speed factor 1 +- 0.1); keepers that wanted 72-90% of it cut a
-road's capacity by 13% at 20 cars per lane-km, the slowest setting the pace of whole lanes.
-Overtakers are the faster drivers, up to SUMO's top sixth: wanting 0.97-1.07 they passed only the
-slower half of SUMO's cars, and on motorway3 no more than 1.99-2.5 times as many cars per km as
-keepers (`make own-nets`, seeds 0-9), where the paper's overtakers make twice the keepers' progress."""
+want about the limit, as SUMO's cars do (speed factor 1 +- 0.1), since the slowest set the pace of
+whole lanes; overtakers are the faster drivers, up to SUMO's top sixth, so that they pass most of
+SUMO's cars (docs/history.md, "Why some rules of the code exist")."""
 
 LANE_BIAS_SD = 0.3
 """m: drivers hold themselves off their lane's centre line, each in its own place (highD: a mean of

@@ -19,19 +19,12 @@ from behaviors.learn.gym_env import ENV_ID
 from behaviors.sumo.sumo_home import sumo_binary
 from behaviors.traffic.lanes import TRAFFIC_OBS_SIZE
 from behaviors.traffic.rewards import TRAFFIC_TERM_NAMES, RewardWeightError
-from sumo_scenarios.osm_like import Demand, OsmLikeNet, build_osm_like
+from sumo_scenarios.osm_like import OsmLikeNet
 
 BEHAVIOUR_ID = TRAFFIC_OBS_SIZE - 1
 """The traffic observation's last value: 0 keeper, 1 overtaker."""
 FORWARD = np.array([0.0, 0.5, 0.0], np.float32)
 """Hold the lane, drive by the car-following law."""
-
-
-@pytest.fixture(scope="module")
-def motorway(tmp_path_factory: pytest.TempPathFactory) -> OsmLikeNet:
-    """A 3-lane motorway with an exit and an on-ramp, built by netconvert from plain XML, with
-    demand dense enough that its cars are on the road 10 s after the start."""
-    return build_osm_like("motorway3", tmp_path_factory.mktemp("motorway3"), Demand(end=600.0, scale=2.0))
 
 
 def a10kw() -> Path | None:

@@ -22,16 +22,10 @@ from behaviors.run.evaluate import (
     plan_evaluation,
     short_placements,
 )
-from sumo_scenarios.osm_like import Demand, OsmLikeNet, build_osm_like
+from sumo_scenarios.osm_like import OsmLikeNet
 
 PLAN = {"agents": [], "episodes": 1, "behaviour": None, "overtakers": 1, "keepers": 1, "placements": None,
         "scenario": None, "seed": 0, "max_steps": 10, "baseline": None}  # fmt: skip
-
-
-@pytest.fixture(scope="module")
-def motorway(tmp_path_factory: pytest.TempPathFactory) -> OsmLikeNet:
-    """A 3-lane motorway of about 4 km with an exit and an on-ramp, and its sumocfg."""
-    return build_osm_like("motorway3", tmp_path_factory.mktemp("motorway3"), Demand(end=600.0, scale=2.0))
 
 
 # the agents that started ------------------------------------------------------------------------

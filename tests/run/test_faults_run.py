@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -142,19 +143,9 @@ def test_a_worker_killed_mid_sweep_loses_only_its_run_and_a_rerun_picks_it_up(tm
 
 
 @pytest.fixture
-def small_disk(tmp_path: Path):
-    """A 160 kB file system of its own (a tmpfs; skipped where mounting is not permitted)."""
-    mount = tmp_path / "small"
-    mount.mkdir()
-    done = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=160k", "tmpfs", str(mount)], capture_output=True
-    )
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode().strip()}")
-    try:
-        yield mount
-    finally:
-        subprocess.run(["umount", "--lazy", str(mount)], check=False)
+def small_disk(tmpfs: Callable[[int], Path]) -> Path:
+    """A 160 kB file system of its own."""
+    return tmpfs(160)
 
 
 @pytest.mark.sumo

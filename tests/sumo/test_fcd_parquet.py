@@ -12,6 +12,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pandas as pd
@@ -155,19 +156,9 @@ def test_sumo_writing_while_it_holds_the_gil_is_never_left_waiting(tmp_path):
 
 
 @pytest.fixture
-def small_disk(tmp_path: Path):
-    """A 64 kB file system of its own (a tmpfs; skipped where mounting is not permitted)."""
-    mount = tmp_path / "small"
-    mount.mkdir()
-    done = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mount)], capture_output=True
-    )
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode().strip()}")
-    try:
-        yield mount
-    finally:
-        subprocess.run(["umount", "--lazy", str(mount)], check=False)
+def small_disk(tmpfs: Callable[[int], Path]) -> Path:
+    """A 64 kB file system of its own."""
+    return tmpfs(64)
 
 
 def test_a_full_disk_under_the_parquet_is_reported_and_never_blocks_sumo(small_disk):
