@@ -21,6 +21,7 @@ from ablation import (
     Samples,
     median_action,
     moves,
+    moves_at_least,
     seed_noise,
     verdict,
 )
@@ -46,6 +47,8 @@ def test_a_figure_moves_beyond_three_times_its_noise_counted_at_least_at_its_flo
     assert moves(1.3, math.nan, floor=0.4)  # noise unknown: the floor alone
     assert not moves(1.3, math.nan)
     assert not moves(math.nan, 0.1, floor=0.4)
+    assert moves_at_least(0.5, 0.1, 0.4) and not moves_at_least(0.3, 0.05, 0.4)  # the least move
+    assert not moves_at_least(1.0, 0.5, 0.4)  # at least the amount, but within 3x the noise
 
 
 def samples(policy: dict, median: dict, rules: dict) -> Samples:
@@ -78,6 +81,7 @@ def test_the_verdict_counts_moved_figures_and_the_behaviours_gap_without_the_net
     assert moved == {(OVERTAKERS, lc), (OVERTAKERS, "thw_median")}
     assert judged.moved == 2
     assert judged.moved_measured == 3  # the keepers' speed too, against the measured noise alone
+    assert judged.moved_amount == 3  # read as the least move that counts: +2 m/s is at least 1 m/s
     assert judged.gap["policy"] == pytest.approx(1.0)
     assert judged.gap_fraction["median"] == pytest.approx(0.1)
     assert judged.gap_fraction["rules"] == pytest.approx(0.0)
