@@ -16,7 +16,7 @@ PACKAGES = {"behaviors": "behaviors", "sumo_scenarios": "sumo_scenarios", "cli":
 
 ALLOWED_CIRCLES: list[set[str]] = []
 
-LAYERS = ("sumo", "road", "report", "paper", "traffic", "fleet", "learn", "run")
+LAYERS = ("sumo", "road", "car", "report", "paper", "traffic", "fleet", "learn", "run")
 """behaviors' folders from the bottom up: a module imports from its own folder or one below it.
 Below them all: `behaviors` itself (errors, files) and sumo_scenarios; above them all: the CLI."""
 

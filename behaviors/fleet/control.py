@@ -17,17 +17,16 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from behaviors.car.model import Actuation, CarModel
 from behaviors.fleet.handover import Handover
 from behaviors.fleet.traffic_rows import TrafficRows
 from behaviors.road.geometry import RoadGeometry
 from behaviors.road.neighbours import Neighbours
 from behaviors.sumo.sim import AgentReadings, SumoSim, VehicleState
 from behaviors.sumo.timing import PhaseTimer
-from behaviors.traffic.actuation import Actuation
 from behaviors.traffic.bodies import Bodies
 from behaviors.traffic.lanes import lane_coordinates
 from behaviors.traffic.rewards import NO_PROGRESS_SPEED
-from behaviors.traffic.settings import CarModel
 from behaviors.traffic.shield import safe_speed, search_reach, side_limits, surroundings
 
 PROJECTION_TRUST = 2.0

@@ -15,15 +15,17 @@ from typing import Any, ClassVar
 import numpy as np
 from gymnasium import spaces
 
+from behaviors.car.model import Actuation, CarModel, ShieldBounds
 from behaviors.errors import BehaveError
 from behaviors.fleet.control import Fleet, HandedRows, Observed, RoadFrame, Sensing, road_frame
 from behaviors.fleet.handover import SIGNAL_DISTANCE, SIGNAL_SECONDS, Handover, LaneEnds, LanePlace, decide
 from behaviors.fleet.traffic_rows import TrafficRows, desired_speed
+from behaviors.paper.heading import actuate
 from behaviors.paper.sensors import OBS_SIZE, OBS_SIZE_WITH_ID, OBSERVATION_LAYOUT, AgentFrame, observe
 from behaviors.road.neighbours import neighbours
 from behaviors.road.routes import lane_leads_on
 from behaviors.sumo.sim import AgentReadings, SumoSim
-from behaviors.traffic.actuation import Actuation, LaneCommand, actuate, actuate_lanes
+from behaviors.traffic.actuation import LaneCommand, actuate_lanes
 from behaviors.traffic.bodies import Bodies
 from behaviors.traffic.lanes import (
     TRAFFIC_LAYOUT,
@@ -43,8 +45,8 @@ from behaviors.traffic.rewards import (
     styled_rewards,
     traffic_rewards,
 )
-from behaviors.traffic.scene import AgentStyle, LaneNeighbours, Motion, RoadPlace, ShieldBounds, look_ahead
-from behaviors.traffic.settings import CarModel, DriverSettings, LaneDriving, LaneHabits
+from behaviors.traffic.scene import AgentStyle, LaneNeighbours, Motion, RoadPlace, look_ahead
+from behaviors.traffic.settings import DriverSettings, LaneDriving, LaneHabits
 from behaviors.traffic.styles import (
     HEADWAY_RANGE,
     PRESETS,
@@ -82,7 +84,7 @@ PAPER_BOUNDS = {
 
 class PaperDriver:
     """The paper's TORCS-like state (65 floats, 66 with the behaviour id), its reward and its
-    heading model: steer turns a heading of the car's own (actuation.actuate)."""
+    heading model: steer turns a heading of the car's own (paper/heading.py)."""
 
     name = "paper"
     max_lateral_speed = CarModel.max_lateral_speed

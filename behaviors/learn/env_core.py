@@ -21,6 +21,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from behaviors.car.model import CarModel
 from behaviors.errors import BehaveError
 from behaviors.fleet.control import Fleet
 from behaviors.fleet.drivers import DRIVERS, make_driver
@@ -29,7 +30,6 @@ from behaviors.road.geometry import RoadGeometry
 from behaviors.sumo.sim import SumoSim, VehicleState
 from behaviors.sumo.timing import PhaseTimer
 from behaviors.traffic.rewards import StepTerms, check_reward_weights
-from behaviors.traffic.settings import CarModel
 from sumo_scenarios import SCENARIO_NAMES, Scenario, get_scenario
 from sumo_scenarios.build import AGENT_VTYPES
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from behaviors.car.model import CarModel
 from behaviors.errors import BehaveError
 from behaviors.fleet.control import Fleet
 from behaviors.fleet.drivers import make_driver
@@ -42,7 +43,6 @@ from behaviors.sumo.scenario_config import (
 )
 from behaviors.sumo.sim import SimOptions, SumoSim, VehicleState
 from behaviors.sumo.timing import PhaseTimer
-from behaviors.traffic.settings import CarModel
 from behaviors.traffic.styles import KINDS, read_population
 
 LORRY_CLASSES = ("truck", "trailer")

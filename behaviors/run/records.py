@@ -13,6 +13,7 @@ from typing import IO, Any
 
 import numpy as np
 
+from behaviors.car.model import CarModel
 from behaviors.files import atomic_path
 from behaviors.fleet.control import RoadFrame
 from behaviors.learn.env import KEEPER_TYPE, LORRY_TYPE, OVERTAKER_TYPE
@@ -26,7 +27,6 @@ from behaviors.report.agents_table import (
 )
 from behaviors.road.geometry import RoadGeometry
 from behaviors.sumo.sim import STANDSTILL_SPEED
-from behaviors.traffic.settings import CarModel
 from behaviors.traffic.styles import KINDS, Styles
 
 AGENT_TYPE_OF = dict(zip(KINDS, (KEEPER_TYPE, OVERTAKER_TYPE, LORRY_TYPE), strict=True))

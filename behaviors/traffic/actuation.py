@@ -1,12 +1,5 @@
-"""Turn the policy's (steer, accel, brake) into SUMO commands: the paper's heading model
-(`actuate`) and the traffic driver's lanes (`actuate_lanes`).
-
-SUMO's sublane model moves a car sideways but has no heading of its own
-(`changeSublane` with 0 means "follow the lane"). The paper's model gives each agent a heading
-relative to the road axis: steering turns it (kinematic bicycle, capped by a lateral-acceleration
-limit), road curvature turns the road under it (so steer 0 on a curve drifts outward), and the car
-then moves v*cos(angle) along the lane (setSpeed) and v*sin(angle) across it (changeSublane). The
-traffic driver's steer chooses a lane instead, and its accel and brake adjust a car-following law:
+"""Turn the traffic driver's (steer, accel, brake) into SUMO commands (the paper's heading model is
+paper/heading.py). Its steer chooses a lane, and its accel and brake adjust a car-following law:
 `actuate_lanes` composes the motives (motives.py), the lane choice (intent.py), the limits
 (limits.py) and the lateral profile (lateral.py). Pure numpy; `SumoSim.command_agents` writes the
 result.
@@ -14,116 +7,25 @@ result.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from behaviors.road.geometry import wrap_angle
+from behaviors.car.model import NO_SHIELD, Actuation, CarModel, ShieldBounds, capped, clamp_to_road
 from behaviors.traffic.intent import lane_intent, lane_wish
 from behaviors.traffic.lateral import sideways
 from behaviors.traffic.limits import SPEED_BOUNDS, bounded, lane_room, reaching_accel, toward
 from behaviors.traffic.motives import lane_wishes, leaving_lane
 from behaviors.traffic.scene import (
-    NO_SHIELD,
     SETTINGS_STYLE,
     AgentStyle,
     LaneNeighbours,
     Motion,
     RoadPlace,
     Scene,
-    ShieldBounds,
     own_lane_traffic,
 )
-from behaviors.traffic.settings import CarModel, DriverSettings, LaneDriving
-
-
-@dataclass(frozen=True)
-class Actuation:
-    speed: np.ndarray  # [N] new car speed, m/s (along its heading)
-    angle: np.ndarray  # [N] new heading relative to the road axis, radians
-    lane_speed: np.ndarray  # [N] speed to command along the lane, m/s
-    lateral_move: np.ndarray  # [N] sideways move this step, metres (positive = left)
-    off_track: np.ndarray  # [N] bool: the move would have crossed the carriageway border
-    side_cut: np.ndarray  # [N] bool: the sideways move was cut by `side_limit`
-    speed_cut: np.ndarray  # [N] bool: the speed was cut by `speed_cap`
-    lateral_speed: np.ndarray | None = None  # [N] m/s towards the fast side (traffic model only)
-    limits: dict[str, int] = field(default_factory=dict)  # agents each named limit vetoed or bound
-    # (limits.LIMIT_NAMES; traffic model only)
-
-
-def capped(speed: np.ndarray, speed_cap: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """`speed` under the shield's `speed_cap` (None: none), and where the cap cut it."""
-    if speed_cap is None:
-        return speed, np.zeros(len(speed), bool)
-    speed_cut = speed > speed_cap
-    return np.where(speed_cut, np.maximum(speed_cap, 0.0), speed), speed_cut
-
-
-def longitudinal(
-    actions: np.ndarray,
-    speed: np.ndarray,
-    speed_limit: np.ndarray,
-    dt: float,
-    car: CarModel,
-    speed_cap: np.ndarray | None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """New speed from accel and brake, within [0, limit] and under `speed_cap`; and where the cap cut it."""
-    accel = np.clip(actions[:, 1], 0.0, 1.0)
-    brake = np.clip(actions[:, 2], 0.0, 1.0)
-    new_speed = np.clip(speed + (car.max_accel * accel - car.max_brake * brake) * dt, 0.0, speed_limit)
-    return capped(new_speed, speed_cap)
-
-
-def clamp_to_road(
-    offset: np.ndarray, move: np.ndarray, half_width: np.ndarray, car: CarModel
-) -> tuple[np.ndarray, np.ndarray]:
-    """The sideways move cut to the room left on the carriageway, and where it would have left it."""
-    room = half_width - car.width / 2
-    target = offset + move
-    return np.clip(target, -room, room) - offset, np.abs(target) > room
-
-
-def actuate(
-    actions: np.ndarray,
-    speed: np.ndarray,
-    angle: np.ndarray,
-    offset: np.ndarray,
-    half_width: np.ndarray,
-    curvature: np.ndarray,
-    speed_limit: np.ndarray,
-    dt: float,
-    car: CarModel,
-    shield: ShieldBounds = NO_SHIELD,
-) -> Actuation:
-    """One control step of the paper's heading model for all agents.
-
-    `offset` is the car centre's distance from the carriageway centre (positive =
-    left), `half_width` half the carriageway width, `curvature` the road axis's
-    curvature (1/m, positive = turning left) at the car. The shield's `side_limit` [N, 2], if given,
-    caps the sideways move to the left and right, its `speed_cap` [N] the speed (see shield.py);
-    a car whose sideways move was cut has its heading turned back to match the move it makes.
-    """
-    side_limit = shield.side_limit
-    steer = np.clip(actions[:, 0], -1.0, 1.0)
-    new_speed, speed_cut = longitudinal(actions, speed, speed_limit, dt, car, shield.speed_cap)
-    yaw_rate = steer * np.minimum(
-        new_speed * np.tan(car.max_steer) / car.wheelbase,
-        car.max_lateral_accel / np.maximum(new_speed, 1.0),
-    )
-    along = new_speed * np.cos(angle) / np.maximum(1.0 - curvature * offset, 0.1)
-    new_angle = wrap_angle(angle + (yaw_rate - curvature * along) * dt)
-    cap = car.max_lateral_speed * dt
-    move = np.clip(new_speed * np.sin(new_angle) * dt, -cap, cap)
-    side_cut = np.zeros(len(move), bool)
-    if side_limit is not None:
-        limited = np.clip(move, -side_limit[:, 1], side_limit[:, 0])
-        side_cut = limited != move
-        travel = np.maximum(new_speed * dt, 1e-9)
-        new_angle = np.where(side_cut, np.arcsin(np.clip(limited / travel, -1.0, 1.0)), new_angle)
-        move = limited
-    move, off_track = clamp_to_road(offset, move, half_width, car)
-    lane_speed = np.maximum(new_speed * np.cos(new_angle), 0.0)
-    return Actuation(new_speed, new_angle, lane_speed, move, off_track, side_cut, speed_cut)
+from behaviors.traffic.settings import DriverSettings, LaneDriving
 
 
 @dataclass(frozen=True)

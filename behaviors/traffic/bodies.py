@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from behaviors.traffic.settings import CarModel
+from behaviors.car.model import CarModel
 
 
 @dataclass(frozen=True)

@@ -9,9 +9,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from behaviors.car.model import CarModel
 from behaviors.traffic.law import FreeRoad, behind_leader, nan_as
 from behaviors.traffic.scene import LaneTraffic, Motion, RoadPlace, Scene, ends_soon, look_ahead
-from behaviors.traffic.settings import CarFollowing, CarModel, LaneDriving, LaneHabits
+from behaviors.traffic.settings import CarFollowing, LaneDriving, LaneHabits
 
 
 def leaving_lane(motion: Motion, place: RoadPlace, lateral: LaneDriving) -> np.ndarray | None:

@@ -71,18 +71,6 @@ class LaneNeighbours:
 
 
 @dataclass(frozen=True)
-class ShieldBounds:
-    """What the safety shield (shield.py) allows each agent this step; None: no bound."""
-
-    side_limit: np.ndarray | None = None  # [N, 2] m: the sideways move to the fast and slow side
-    speed_cap: np.ndarray | None = None  # [N] m/s
-
-
-NO_SHIELD = ShieldBounds()
-"""No bound: the bare policy."""
-
-
-@dataclass(frozen=True)
 class AgentStyle:
     """How each agent drives within the rules; None: as the settings say for all."""
 

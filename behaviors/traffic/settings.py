@@ -3,25 +3,12 @@ driven, the rules each switchable alone, and each agent's lane habits. Plain fro
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from behaviors.car.model import CarModel
 from sumo_scenarios.build import PASSENGER_MIN_GAP
-
-
-@dataclass(frozen=True)
-class CarModel:
-    """Physical limits of a learned agent; length/width match the behave vTypes."""
-
-    length: float = 5.0
-    width: float = 1.8
-    max_accel: float = 3.0  # m/s^2 at accel = 1
-    max_brake: float = 7.5  # m/s^2 at brake = 1
-    max_steer: float = 0.366  # rad at steer = +-1 (TORCS' steer lock)
-    wheelbase: float = 2.7
-    max_lateral_accel: float = 8.0  # m/s^2, caps the yaw rate at speed
-    max_lateral_speed: float = 5.0  # m/s, the vTypes' maxSpeedLat: SUMO's per-step cap
 
 
 @dataclass(frozen=True)
@@ -161,4 +148,4 @@ class DriverSettings:
 
     lateral: LaneDriving
     dt: float  # s
-    car: CarModel = CarModel()
+    car: CarModel = field(default_factory=CarModel)

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from behaviors.car.model import CarModel
 from behaviors.road.neighbours import Neighbours, nearest_per_slot, neighbours
 from behaviors.traffic.bodies import Bodies
-from behaviors.traffic.settings import CarModel
 
 SIDE_MARGIN = 0.3
 """Metres of lateral clearance kept between two cars side by side (a pair ends up twice this apart)."""

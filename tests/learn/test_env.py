@@ -10,13 +10,13 @@ import pytest
 from pettingzoo.test import parallel_api_test
 
 from behaviors import BehaveError, make_env
+from behaviors.car.model import CarModel
 from behaviors.learn.env import EnvConfig
 from behaviors.learn.metrics import passed_fraction
 from behaviors.paper.sensors import SLICES
 from behaviors.sumo.sim import VehicleState
 from behaviors.sumo.sumo_home import sumo_binary
 from behaviors.traffic.rewards import COLLISION_PENALTY, OFF_TRACK_PENALTY
-from behaviors.traffic.settings import CarModel
 
 CAR = CarModel()
 

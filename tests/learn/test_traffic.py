@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from behaviors.car.model import CarModel
 from behaviors.fleet.control import Fleet, moves_to_send
 from behaviors.fleet.drivers import PaperDriver, TrafficDriver, make_driver
 from behaviors.fleet.handover import HANDOVER_DISTANCE, LaneEnds, LanePlace, straddling_an_ending_lane
@@ -42,7 +43,7 @@ from behaviors.traffic.limits import gap_acceptable
 from behaviors.traffic.motives import LaneWishes, falling_in, letting_in, slow_side_free
 from behaviors.traffic.rewards import TrafficStep, TrafficWeights, traffic_rewards
 from behaviors.traffic.scene import AgentStyle, LaneNeighbours, Motion, RoadPlace, lane_traffic, look_ahead
-from behaviors.traffic.settings import CarFollowing, CarModel, DriverSettings, LaneDriving, Rules
+from behaviors.traffic.settings import CarFollowing, DriverSettings, LaneDriving, Rules
 from behaviors.traffic.shield import surroundings as shield_surroundings
 from behaviors.traffic.styles import fixed_styles
 from sumo_scenarios import get_scenario

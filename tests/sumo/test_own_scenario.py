@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from behaviors.car.model import CarModel
 from behaviors.errors import BehaveError
 from behaviors.fleet.control import Fleet
 from behaviors.fleet.drivers import make_driver
@@ -28,7 +29,6 @@ from behaviors.sumo.sim import COLLISION_OPTIONS, SimOptions, SumoSim
 from behaviors.sumo.sumo_home import sumo_binary
 from behaviors.sumo.timing import PhaseTimer
 from behaviors.traffic.lanes import TRAFFIC_OBS_SIZE
-from behaviors.traffic.settings import CarModel
 from behaviors.traffic.styles import fixed_styles
 from sumo_scenarios import get_scenario
 

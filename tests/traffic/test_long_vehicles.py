@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from behaviors.car.model import CarModel
 from behaviors.run.populate import populate
 from behaviors.run.populate_config import DEFAULT_POLICY, PopulateConfig
 from behaviors.run.records import collision_incident
 from behaviors.traffic.bodies import Bodies
 from behaviors.traffic.lanes import GAP_RANGE, search_radius, surroundings
-from behaviors.traffic.settings import CarModel
 from behaviors.traffic.shield import search_reach
 from behaviors.traffic.shield import surroundings as shield_surroundings
 from tests.learn.test_traffic import STRAIGHT, one_agent

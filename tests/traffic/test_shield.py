@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 
 from behaviors import make_env
-from behaviors.traffic.actuation import actuate
-from behaviors.traffic.scene import ShieldBounds
-from behaviors.traffic.settings import CarModel
+from behaviors.car.model import CarModel, ShieldBounds
+from behaviors.paper.heading import actuate
 from behaviors.traffic.shield import (
     EMERGENCY_DECEL,
     SIDE_MARGIN,
