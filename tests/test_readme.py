@@ -236,8 +236,8 @@ def is_setting(name: str) -> bool:
 
 def module_named(short: str) -> str:
     """The import name of behaviors' module `short` (the table names modules without their folder)."""
-    (path,) = (ROOT / "behaviors").glob(f"*/{short}.py")
-    return f"behaviors.{path.parent.name}.{short}"
+    (path,) = (ROOT / "behaviors").rglob(f"{short}.py")
+    return ".".join(path.relative_to(ROOT).with_suffix("").parts)
 
 
 def test_the_rules_table_names_settings_functions_and_tests_that_exist() -> None:

@@ -1,6 +1,6 @@
 """Turn the traffic driver's (steer, accel, brake) into SUMO commands (the paper's heading model is
 paper/heading.py). Its steer chooses a lane, and its accel and brake adjust a car-following law:
-`actuate_lanes` composes the motives (motives.py), the lane choice (intent.py), the limits
+`actuate_lanes` composes the motives (motives/), the lane choice (intent.py), the limits
 (limits.py) and the lateral profile (lateral.py). Pure numpy; `SumoSim.command_agents` writes the
 result.
 """
@@ -15,7 +15,8 @@ from behaviors.car.model import NO_SHIELD, Actuation, CarModel, ShieldBounds, ca
 from behaviors.traffic.intent import lane_intent, lane_wish
 from behaviors.traffic.lateral import sideways
 from behaviors.traffic.limits import SPEED_BOUNDS, bounded, lane_room, reaching_accel, toward
-from behaviors.traffic.motives import lane_wishes, leaving_lane
+from behaviors.traffic.motives.strategic import leaving_lane
+from behaviors.traffic.motives.wishes import lane_wishes
 from behaviors.traffic.scene import (
     SETTINGS_STYLE,
     AgentStyle,
@@ -36,7 +37,7 @@ class LaneCommand:
     actuation: Actuation
     changing: np.ndarray  # [N] int, see `intent.lane_intent`
     lateral_accel: np.ndarray  # [N] m/s^2, + = fast side
-    held_for: np.ndarray  # [N] s the car has been held up (`motives.held_up`) without a break
+    held_for: np.ndarray  # [N] s the car has been held up (`speed_gain.held_up`) without a break
     limited: dict[str, np.ndarray]  # limits.LIMIT_NAMES -> [N] bool: the agents it vetoed or bound
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from behaviors.traffic.motives import LaneWishes
+from behaviors.traffic.motives.wishes import LaneWishes
 from behaviors.traffic.scene import RoadPlace
 from behaviors.traffic.settings import LaneDriving
 

@@ -1,6 +1,6 @@
 """The limits of the traffic driver, as ordered lists of named limits, each tied to its switch in
 `Rules` (or always on): lane vetoes close a neighbour lane to a change, speed bounds cap the
-acceleration the policy may push to. Limits only forbid; the motives (motives.py) choose, and the
+acceleration the policy may push to. Limits only forbid; the motives (motives/) choose, and the
 two that choose a speed, letting in and falling in, do it by a bound here. The composition
 (`actuation.actuate_lanes`) applies them in this order and says, per limit, which agents it vetoed
 or bound (`LIMIT_NAMES`)."""
@@ -13,7 +13,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from behaviors.traffic.law import behind_leader, nan_as, new_follower_accel
-from behaviors.traffic.motives import falling_in, letting_in
+from behaviors.traffic.motives.cooperative import letting_in
+from behaviors.traffic.motives.strategic import falling_in
 from behaviors.traffic.scene import LaneTraffic, Motion, RoadPlace, Scene, ends_soon
 from behaviors.traffic.settings import DriverSettings, LaneDriving, Rules
 

@@ -50,7 +50,7 @@ class LaneNeighbours:
     the fast-side one; `lane_followers` ([N, 2] gap, speed; None: none) the nearest followers whose
     centres are in the fast-side and slow-side lanes (`limits.gap_acceptable`); `asking` ([N, 2]
     bool; None: nobody) whether the fast-side and slow-side leader wants to come over
-    (`motives.letting_in`)."""
+    (`cooperative.letting_in`)."""
 
     gap: np.ndarray
     other_speed: np.ndarray
@@ -144,7 +144,7 @@ def look_ahead(speed: np.ndarray, lateral: LaneDriving) -> np.ndarray:
 @dataclass(frozen=True)
 class Scene:
     """One step's agents as the motives and limits weigh them: the bundles, their LaneTraffic, the
-    side each car must leave its ending lane to (`motives.leaving_lane`) and the law's acceleration
+    side each car must leave its ending lane to (`strategic.leaving_lane`) and the law's acceleration
     behind the leader of a lane its body reaches into (`limits.reaching_over`)."""
 
     traffic: LaneTraffic
@@ -163,3 +163,15 @@ class Scene:
     def leaving(self) -> np.ndarray | None:
         """[N, 2] bool: the car leaves its ending lane to the fast side, the slow side."""
         return None if self.leave is None else self.leave[:, None] == np.array([1, -1])
+
+
+def lane_clear(traffic: LaneTraffic, column: int, lateral: LaneDriving) -> np.ndarray:
+    """[N] bool: the leader in a neighbour lane (`column` of the traffic's slots) would not come
+    within `look_ahead` for `keep_right_catch_up_s`, at the speed the car wants (a driver does not
+    change lanes only to be held up again; judged at its own speed, a car slowed down behind a leader
+    would find the lane beside free as soon as that leader dropped back, and move back and forth
+    across the line)."""
+    t = traffic
+    wanted = np.maximum(t.speed, t.desired_speed)
+    closing = np.maximum(wanted - nan_as(t.other_speed[:, column], np.inf), 0.0)
+    return t.gap[:, column] > look_ahead(t.speed, lateral) + closing * lateral.keep_right_catch_up_s

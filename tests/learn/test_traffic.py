@@ -40,7 +40,10 @@ from behaviors.traffic.lanes import (
 from behaviors.traffic.lateral import lateral_profile
 from behaviors.traffic.law import following_accel
 from behaviors.traffic.limits import gap_acceptable
-from behaviors.traffic.motives import LaneWishes, falling_in, letting_in, slow_side_free
+from behaviors.traffic.motives.cooperative import letting_in
+from behaviors.traffic.motives.keep_right import slow_side_free
+from behaviors.traffic.motives.strategic import falling_in
+from behaviors.traffic.motives.wishes import LaneWishes
 from behaviors.traffic.rewards import TrafficStep, TrafficWeights, traffic_rewards
 from behaviors.traffic.scene import AgentStyle, LaneNeighbours, Motion, RoadPlace, lane_traffic, look_ahead
 from behaviors.traffic.settings import CarFollowing, DriverSettings, LaneDriving, Rules

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from helpers import behave
 
-from behaviors.traffic.motives import letting_in
+from behaviors.traffic.motives.cooperative import letting_in
 from behaviors.traffic.scene import lane_traffic
 from behaviors.traffic.settings import LaneDriving
 from tests.learn.test_traffic import leaders_of
