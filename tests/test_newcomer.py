@@ -13,11 +13,11 @@ from pathlib import Path
 
 import pytest
 from helpers import behave
-from test_own_scenario import netconvert
 
 from behaviors.cli.policy import MODEL_CARD, model_card_lines
 from behaviors.learn.env import KEEPER_TYPE, OVERTAKER_TYPE
 from behaviors.report.fcd_read import read_fcd
+from tests.sumo.test_own_scenario import netconvert
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from test_realism import populated, report
 
 from behaviors.report.fcd_read import read_fcd
 from behaviors.report.flow import ALL, RoadEdges, edie_cells, region, road_from_fcd, summary
 from sumo_scenarios import get_scenario
+from tests.report.test_realism import populated, report
 
 EDGE_M = 1000.0
 STEP = 0.5
