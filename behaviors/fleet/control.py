@@ -145,6 +145,7 @@ class Sensing:
     lane_rows: np.ndarray  # each agent's lane's row in the geometry
     entered: np.ndarray  # agents in another lane than at the last read
     reach: float  # metres within which the shield looks, when on
+    bodies: Bodies  # every vehicle's size and the agents' own, read once for the driver and the shield
 
 
 @dataclass(frozen=True)
@@ -318,12 +319,12 @@ class Fleet:
                 raise RuntimeError("Fleet.sense with agents SUMO no longer has: keep() them out first")
             self.rows.vehicle_rows = rows
             readings, lane_rows, entered = self._read_lanes(sim, vehicles, rows)
-        own_longest = float(vehicles.length[rows].max(initial=0.0))
+        bodies = Bodies(vehicles.length, vehicles.width, vehicles.length[rows], vehicles.width[rows])
         reach = search_reach(
-            float(self.rows.speed.max(initial=0.0)), self.dt, self.car, vehicles.longest, own_longest
+            float(self.rows.speed.max(initial=0.0)), self.dt, self.car, vehicles.longest, bodies.own_longest
         )
         with self.timer.phase("sensors"):
-            sensing = Sensing(vehicles, rows, readings, lane_rows, entered, reach)
+            sensing = Sensing(vehicles, rows, readings, lane_rows, entered, reach, bodies)
             observed = self.driver.observe(self, sim, sensing, with_id)
         self.rows.frame = observed.frame
         if observed.handed is not None:
@@ -333,7 +334,7 @@ class Fleet:
             self._hand_over(sim, observed.handover)
         if self.shield:
             with self.timer.phase("shield"):
-                self._shield(vehicles, rows, reach, observed.near)
+                self._shield(sensing, observed.near)
         return observed.obs
 
     def _hand_over(self, sim: SumoSim, handover: Handover) -> None:
@@ -404,17 +405,15 @@ class Fleet:
         names = g.lane_name_array[lane_rows].tolist()
         return AgentReadings(names, lane_pos, lateral), lane_rows, entered
 
-    def _shield(
-        self, vehicles: VehicleState, rows: np.ndarray, reach: float, near: Neighbours | None
-    ) -> None:
+    def _shield(self, sensing: Sensing, near: Neighbours | None) -> None:
         """Side limits and speed caps for the next action (SUMO cars leading agents at SUMO's speed);
-        `reach` bounds the search, `near` is the sensors' search if they made one as wide."""
+        the sensing's `reach` bounds the search, `near` is the sensors' search if they made one as wide."""
+        vehicles, rows, reach, bodies = sensing.vehicles, sensing.rows, sensing.reach, sensing.bodies
         r = self.rows
         f = r.frame
         assert f is not None
         road_axis = f.heading - r.angle  # lanes run along the road, not along a swerving car
         fronts = vehicles.position
-        bodies = Bodies(vehicles.length, vehicles.width, vehicles.length[rows], vehicles.width[rows])
         around = surroundings(fronts[rows], road_axis, fronts, rows, self.car, reach, near, bodies)
         agent_of = np.full(len(vehicles.ids), -1, np.int64)
         agent_of[rows] = np.arange(len(rows))

@@ -26,7 +26,6 @@ from behaviors.road.neighbours import neighbours
 from behaviors.road.routes import lane_leads_on
 from behaviors.sumo.sim import AgentReadings, SumoSim
 from behaviors.traffic.actuation import LaneCommand, actuate_lanes
-from behaviors.traffic.bodies import Bodies
 from behaviors.traffic.lanes import (
     TRAFFIC_LAYOUT,
     TRAFFIC_OBS_SIZE,
@@ -232,7 +231,7 @@ class TrafficDriver:
         need, and decides the hand-overs (sent to SUMO by the fleet after sensing)."""
         r, g, own = fleet.rows, fleet.geometry, fleet.own
         vehicles, rows, readings = sensing.vehicles, sensing.rows, sensing.readings
-        bodies = Bodies(vehicles.length, vehicles.width, vehicles.length[rows], vehicles.width[rows])
+        bodies = sensing.bodies
         radius = search_radius(bodies.longest)
         radius = max(radius, sensing.reach) if fleet.shield else radius
         front = vehicles.position[rows]  # read only below: one gather serves the search, frame and lanes
