@@ -267,9 +267,9 @@ class Population:
         if not agents:
             return
         for vid, kind in zip(agents, kinds, strict=True):
-            size = sim.vehicle_size(vid)
+            size = sim.vehicle_size(vid) if kind == "lorry" else None  # a car takes the agents' size
             sim.set_agent_type(vid, AGENT_TYPE_OF[kind])
-            if kind == "lorry" and sim.vehicle_size(vid) != size:
+            if size is not None and sim.vehicle_size(vid) != size:
                 sim.set_vehicle_size(vid, *size)
         sim.take_control(agents)
         behaviour = np.array([KINDS.index(kind) for kind in kinds], float)
